@@ -1,0 +1,442 @@
+"""Self-adaptive differential evolution (jDE), vectorized over the population.
+
+This is the optimizer behind model identification (paper Sec. IV-B, Fig. 7:
+"a self-adaptive differential evolution (DE) algorithm ... minimizing the RMS
+error of eq. (18)"). The algorithm is jDE of Brest, Greiner, Boskovic, Mernik
+and Zumer, "Self-adapting control parameters in differential evolution",
+IEEE Trans. Evol. Comput. 10(6), 2006:
+
+* strategy DE/rand/1/bin;
+* every individual i carries its own scale factor F_i and crossover rate CR_i;
+  before producing its trial vector, F_i is regenerated with probability
+  tau1 = 0.1 as F_l + rand * F_u (F_l = 0.1, F_u = 0.9, so F in [0.1, 1.0]) and
+  CR_i with probability tau2 = 0.1 as rand (CR in [0, 1]);
+* the new (F, CR) survive only if the trial vector survives selection.
+
+Differences from `scipy.optimize.differential_evolution`:
+
+* the objective is called once per generation with the whole (P, d) trial
+  population, so a compiled objective can parallelize over candidates;
+* ``popsize`` is the number of individuals, not a multiplier of d;
+* parameters flagged in ``log_scale`` are searched uniformly in log10 of their
+  magnitude (sign kept), for parameters spanning decades;
+* non-finite costs are +inf (divergent candidates lose every comparison);
+* ``max_evals`` is a hard cap on evaluations, polish included;
+* Ctrl-C returns the best point found so far (``message == "interrupted"``).
+
+Internally every parameter lives on the unit interval [0, 1]; the map to the
+user's space is affine (linear parameters) or affine in log10|x| (log-scaled).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+__all__ = ["DEResult", "jde_minimize"]
+
+# jDE constants (Brest et al. 2006, Sec. III).
+_TAU1 = 0.1     # probability of regenerating F_i
+_TAU2 = 0.1     # probability of regenerating CR_i
+_F_LOW = 0.1    # F_l
+_F_UP = 0.9     # F_u: F = F_l + rand * F_u lies in [0.1, 1.0]
+
+
+@dataclass
+class DEResult:
+    """Outcome of :func:`jde_minimize`.
+
+    Attributes
+    ----------
+    x : ndarray, shape (d,)
+        Best parameter vector found, in the user's (natural) space.
+    fun : float
+        Objective value at ``x`` (``inf`` if no finite value was ever seen).
+    nfev : int
+        Number of objective evaluations (rows passed to ``func_pop``), polish
+        included.
+    nit : int
+        Number of DE generations performed (the initial population is not a
+        generation).
+    success : bool
+        True when the run stopped on its convergence criterion (stagnation or a
+        collapsed population); False when the evaluation budget ran out, the
+        callback asked to stop, the run was interrupted, or no finite cost was
+        found.
+    message : str
+        Why the run stopped.
+    history : ndarray, shape (nit + 1,)
+        Best objective value after the initial population and after every
+        generation (non-increasing). The polish result is not in it.
+    """
+
+    x: np.ndarray
+    fun: float
+    nfev: int
+    nit: int
+    success: bool
+    message: str
+    history: np.ndarray = field(repr=False)
+
+
+class _BudgetExhausted(Exception):
+    """Raised inside the polish objective to stop a scipy minimizer on budget."""
+
+
+class _Space:
+    """Affine / log-affine map between the unit hypercube and the user's box."""
+
+    def __init__(self, bounds, log_scale):
+        b = np.asarray(bounds, dtype=float)
+        if b.ndim != 2 or b.shape[1] != 2 or b.shape[0] < 1:
+            raise ValueError(
+                f"bounds must be a sequence of (lo, hi) pairs, got shape {b.shape}")
+        if not np.all(np.isfinite(b)):
+            raise ValueError("bounds must be finite")
+        if np.any(b[:, 0] > b[:, 1]):
+            bad = int(np.nonzero(b[:, 0] > b[:, 1])[0][0])
+            raise ValueError(
+                f"bounds[{bad}] = {tuple(b[bad])}: lower bound exceeds upper bound")
+        d = b.shape[0]
+        if log_scale is None:
+            log = np.zeros(d, dtype=bool)
+        else:
+            log = np.asarray(log_scale, dtype=bool).reshape(-1)
+            if log.shape[0] != d:
+                raise ValueError(
+                    f"log_scale has {log.shape[0]} entries for {d} parameters")
+        for j in np.nonzero(log)[0]:
+            lo, hi = b[j]
+            # A log-scaled range must keep one sign and exclude 0.
+            if lo == 0.0 or hi == 0.0 or (lo < 0.0) != (hi < 0.0):
+                raise ValueError(
+                    f"bounds[{j}] = ({lo}, {hi}) is log-scaled but contains or "
+                    "touches zero; a log-scaled range must be strictly positive "
+                    "or strictly negative")
+        self.d = d
+        self.bounds = b
+        self.log = log
+        self.sign = np.where(b[:, 0] < 0.0, -1.0, 1.0)
+        # Linear parameters: x = off + z * span.
+        # Log parameters:    x = sign * 10**(off + z * span), off/span in log10|x|.
+        mag = np.abs(b)
+        with np.errstate(divide="ignore"):
+            lmin = np.log10(np.minimum(mag[:, 0], mag[:, 1]))
+            lmax = np.log10(np.maximum(mag[:, 0], mag[:, 1]))
+        self.off = np.where(log, lmin, b[:, 0])
+        self.span = np.where(log, lmax - lmin, b[:, 1] - b[:, 0])
+
+    def to_natural(self, Z):
+        Z = np.asarray(Z, dtype=float)
+        lin = self.off + Z * self.span
+        X = np.where(self.log, self.sign * 10.0 ** np.where(self.log, lin, 0.0), lin)
+        # Pin exact bound values (avoid 10**log10(x) round-off leaving the box).
+        return np.clip(X, self.bounds[:, 0], self.bounds[:, 1])
+
+    def to_unit(self, X):
+        X = np.asarray(X, dtype=float)
+        X = np.clip(X, self.bounds[:, 0], self.bounds[:, 1])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            val = np.where(self.log, np.log10(np.abs(np.where(self.log, X, 1.0))), X)
+            Z = np.where(self.span > 0.0, (val - self.off) / np.where(
+                self.span > 0.0, self.span, 1.0), 0.5)
+        return np.clip(Z, 0.0, 1.0)
+
+
+def _latin_hypercube(rng, P, d):
+    """P points, one in each of P equal strata per coordinate."""
+    Z = (rng.random((P, d)) + np.arange(P)[:, None]) / P
+    for j in range(d):
+        Z[:, j] = Z[rng.permutation(P), j]
+    return Z
+
+
+def _three_distinct_others(rng, P):
+    """Indices r1, r2, r3 mutually distinct and different from i, for each i."""
+    # Random keys with the diagonal pushed last: the 3 smallest keys in row i
+    # are a uniform random 3-subset of {0..P-1} \ {i}.
+    keys = rng.random((P, P))
+    keys[np.arange(P), np.arange(P)] = 2.0
+    idx = np.argpartition(keys, 3, axis=1)[:, :3]
+    # argpartition does not randomize order within the 3; shuffle roles anyway.
+    perm = rng.permuted(np.broadcast_to(np.arange(3), (P, 3)), axis=1)
+    return np.take_along_axis(idx, perm, axis=1).T
+
+
+def jde_minimize(func_pop: Callable[[np.ndarray], np.ndarray],
+                 bounds: Sequence[tuple[float, float]], *,
+                 log_scale: Sequence[bool] | None = None,
+                 popsize: int | None = None,
+                 max_evals: int = 20000,
+                 seed: int | np.random.Generator | None = None,
+                 tol_stagnation: float = 1e-6,
+                 patience: int = 50,
+                 polish: bool | str = True,
+                 polish_maxfev: int | None = None,
+                 progress: bool = False,
+                 callback: Callable | None = None,
+                 x0: Sequence[float] | None = None) -> DEResult:
+    """Minimize ``func_pop`` over a box with self-adaptive DE (jDE).
+
+    Parameters
+    ----------
+    func_pop : callable
+        ``func_pop(X) -> costs``: ``X`` is an (P, d) float array of candidate
+        vectors in the user's (natural) space, one per row; returns P costs.
+        NaN or inf costs (e.g. a divergent simulation) count as +inf.
+    bounds : sequence of (lo, hi)
+        Box, one pair per parameter, in natural units; ``lo == hi`` fixes a
+        parameter.
+    log_scale : sequence of bool, optional
+        Parameters flagged True are searched uniformly in log10|x| with the
+        sign of the range kept: (1e-8, 1e-3) or (-1e5, -1e2) are fine, a range
+        containing 0 is refused.
+    popsize : int, optional
+        Number of individuals P (not a multiplier). Default ``clip(10 d, 20, 100)``.
+    max_evals : int
+        Hard cap on the number of objective evaluations (rows), polish included.
+    seed : int or numpy.random.Generator, optional
+        Same seed, same objective -> same result, bit for bit.
+    tol_stagnation, patience : float, int
+        Stop (success) when the best cost improved by no more than
+        ``tol_stagnation * |best|`` over the last ``patience`` generations.
+    polish : bool or {"L-BFGS-B", "Nelder-Mead"}
+        Refine the best point with ``scipy.optimize.minimize`` in the internal
+        unit-cube coordinates. True means L-BFGS-B, with central-difference
+        gradients evaluated as one (2d + 1, d) population call.
+    polish_maxfev : int, optional
+        Evaluation budget of the polish, taken out of ``max_evals``.
+        Default ``min(40 (2d + 1), max_evals // 10)``.
+    progress : bool
+        Show a tqdm progress bar counting evaluations.
+    callback : callable, optional
+        ``callback(x, fun, nit)`` after every generation with the current best
+        (natural space); a truthy return stops the run (success False).
+    x0 : sequence of float, optional
+        A starting guess placed in the initial population (clipped to bounds).
+
+    Returns
+    -------
+    DEResult
+    """
+    space = _Space(bounds, log_scale)
+    d = space.d
+    if int(max_evals) != max_evals or max_evals < 1:
+        raise ValueError(f"max_evals must be a positive integer, got {max_evals!r}")
+    max_evals = int(max_evals)
+    if popsize is None:
+        P = int(np.clip(10 * d, 20, 100))
+    else:
+        P = int(popsize)
+        if P != popsize or P < 4:
+            raise ValueError(f"popsize must be an integer >= 4 (DE/rand/1 needs "
+                             f"3 others), got {popsize!r}")
+    if not (tol_stagnation >= 0.0):
+        raise ValueError(f"tol_stagnation must be >= 0, got {tol_stagnation!r}")
+    if int(patience) != patience or patience < 1:
+        raise ValueError(f"patience must be a positive integer, got {patience!r}")
+    if polish is True:
+        polish_method = "L-BFGS-B"
+    elif polish is False or polish is None:
+        polish_method = None
+    elif polish in ("L-BFGS-B", "Nelder-Mead"):
+        polish_method = polish
+    else:
+        raise ValueError(
+            f"polish must be True, False, 'L-BFGS-B' or 'Nelder-Mead', got {polish!r}")
+    if polish_method is None:
+        polish_budget = 0
+    elif polish_maxfev is None:
+        polish_budget = min(40 * (2 * d + 1), max_evals // 10)
+    else:
+        polish_budget = int(polish_maxfev)
+        if polish_budget < 0:
+            raise ValueError(f"polish_maxfev must be >= 0, got {polish_maxfev!r}")
+    de_budget = max_evals - polish_budget
+    if de_budget < P:
+        raise ValueError(
+            f"max_evals={max_evals} leaves {de_budget} evaluations for DE after the "
+            f"polish budget ({polish_budget}); need at least one population ({P})")
+    if x0 is not None:
+        x0 = np.asarray(x0, dtype=float).reshape(-1)
+        if x0.shape[0] != d or not np.all(np.isfinite(x0)):
+            raise ValueError(f"x0 must hold {d} finite values, got {x0!r}")
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+
+    pbar = None
+    if progress:
+        from tqdm.auto import tqdm
+        pbar = tqdm(total=max_evals, unit="eval", desc="jDE")
+
+    nfev = 0
+
+    def evaluate(Z):
+        nonlocal nfev
+        X = space.to_natural(Z)
+        f = np.asarray(func_pop(X), dtype=float).reshape(-1)
+        if f.shape[0] != X.shape[0]:
+            raise ValueError(
+                f"func_pop returned {f.shape[0]} costs for {X.shape[0]} candidates")
+        nfev += X.shape[0]
+        if pbar is not None:
+            pbar.update(X.shape[0])
+        # Divergent candidates (NaN/inf) must lose every comparison.
+        return np.where(np.isfinite(f), f, np.inf)
+
+    pop = _latin_hypercube(rng, P, d)
+    if x0 is not None:
+        pop[0] = space.to_unit(x0)
+    Fs = np.full(P, 0.5)      # jDE initial F and CR (Brest et al. 2006)
+    CRs = np.full(P, 0.9)
+    cost = np.full(P, np.inf)
+    history = []
+    nit = 0
+    message = None
+    success = False
+    try:
+        cost = evaluate(pop)
+        history.append(cost.min())
+        while message is None:
+            remaining = de_budget - nfev
+            if remaining <= 0:
+                message = "maximum number of evaluations reached"
+                break
+            # The last generation may be partial so the budget is used exactly.
+            m = min(P, remaining)
+            # jDE self-adaptation of F and CR (before mutation).
+            F_new = np.where(rng.random(P) < _TAU1, _F_LOW + rng.random(P) * _F_UP, Fs)
+            CR_new = np.where(rng.random(P) < _TAU2, rng.random(P), CRs)
+            r1, r2, r3 = _three_distinct_others(rng, P)
+            base = pop[r1]
+            mutant = base + F_new[:, None] * (pop[r2] - pop[r3])
+            # Bounce back between the base vector and the violated bound: keeps
+            # diversity near the boundary better than clipping.
+            low = mutant < 0.0
+            high = mutant > 1.0
+            u = rng.random((P, d))
+            mutant = np.where(low, u * base, mutant)
+            mutant = np.where(high, base + u * (1.0 - base), mutant)
+            cross = rng.random((P, d)) < CR_new[:, None]
+            cross[np.arange(P), rng.integers(0, d, P)] = True   # j_rand
+            trial = np.where(cross, mutant, pop)
+
+            idx = np.arange(m)
+            f_trial = evaluate(trial[idx])
+            better = f_trial <= cost[idx]
+            win = idx[better]
+            pop[win] = trial[win]
+            cost[win] = f_trial[better]
+            Fs[win] = F_new[win]
+            CRs[win] = CR_new[win]
+            nit += 1
+            best = cost.min()
+            history.append(best)
+
+            if callback is not None:
+                ib = int(np.argmin(cost))
+                if callback(space.to_natural(pop[ib]), float(cost[ib]), nit):
+                    message = "stopped by callback"
+                    break
+            if nit >= patience and np.isfinite(best):
+                old = history[-1 - patience]
+                if old - best <= tol_stagnation * abs(old):
+                    message = (f"stagnation: relative improvement <= {tol_stagnation:g}"
+                               f" over {patience} generations")
+                    success = True
+                    break
+            if np.isfinite(best) and np.ptp(pop, axis=0).max() < 1e-12:
+                message = "converged: population collapsed"
+                success = True
+                break
+    except KeyboardInterrupt:
+        message = "interrupted"
+        success = False
+
+    ib = int(np.argmin(cost))
+    z_best = pop[ib].copy()
+    f_best = float(cost[ib])
+
+    if (message != "interrupted" and polish_method is not None and polish_budget > 0
+            and np.isfinite(f_best)):
+        try:
+            z_best, f_best = _polish(evaluate, z_best, f_best, polish_method,
+                                     polish_budget, lambda: nfev)
+        except KeyboardInterrupt:
+            message = "interrupted"
+            success = False
+    if pbar is not None:
+        pbar.close()
+    if not np.isfinite(f_best):
+        success = False
+        message = (message or "") + "; no finite cost found"
+    return DEResult(x=space.to_natural(z_best), fun=f_best, nfev=nfev, nit=nit,
+                    success=success, message=message,
+                    history=np.asarray(history, dtype=float))
+
+
+def _polish(evaluate, z0, f0, method, budget, get_nfev):
+    """Local refinement in unit-cube coordinates within ``budget`` evaluations.
+
+    Returns the best (z, f) seen, which is never worse than (z0, f0): every
+    evaluated point, finite-difference stencils included, is a candidate.
+    """
+    from scipy.optimize import minimize
+
+    d = z0.shape[0]
+    start = get_nfev()
+    best = [z0.copy(), f0]
+    # Step of 1e-6 of the box: central differences then carry ~1e-12 truncation
+    # error against ~1e-10 round-off of a simulated cost (relative).
+    h = 1e-6
+
+    def consider(Z, f):
+        i = int(np.argmin(f))
+        if f[i] < best[1]:
+            best[0], best[1] = Z[i].copy(), float(f[i])
+
+    def fun_grad(z):
+        if get_nfev() - start + 2 * d + 1 > budget:
+            raise _BudgetExhausted
+        z = np.clip(z, 0.0, 1.0)
+        # Central differences, shifted inward at the bounds.
+        zc = np.clip(z, h, 1.0 - h)
+        E = np.eye(d) * h
+        Z = np.vstack([z[None, :], zc + E, zc - E])
+        f = evaluate(Z)
+        consider(Z, f)
+        if not np.all(np.isfinite(f)):
+            # A stencil touching a divergent region: report no descent there.
+            return (f[0] if np.isfinite(f[0]) else 1e300), np.zeros(d)
+        g = (f[1:d + 1] - f[d + 1:]) / (2.0 * h)
+        return f[0], g
+
+    def fun_only(z):
+        if get_nfev() - start + 1 > budget:
+            raise _BudgetExhausted
+        Z = np.clip(z, 0.0, 1.0)[None, :]
+        f = evaluate(Z)
+        consider(Z, f)
+        return f[0] if np.isfinite(f[0]) else 1e300
+
+    try:
+        if method == "L-BFGS-B":
+            minimize(fun_grad, z0, jac=True, method="L-BFGS-B",
+                     bounds=[(0.0, 1.0)] * d,
+                     options={"maxfun": budget, "ftol": 1e-15, "gtol": 1e-12})
+        else:
+            minimize(fun_only, z0, method="Nelder-Mead", bounds=[(0.0, 1.0)] * d,
+                     options={"maxfev": budget, "xatol": 1e-10, "fatol": 1e-15,
+                              "initial_simplex": _nm_simplex(z0)})
+    except _BudgetExhausted:
+        pass
+    return best[0], best[1]
+
+
+def _nm_simplex(z0, step=0.02):
+    """A small simplex around z0 inside the unit cube (DE already localized it)."""
+    d = z0.shape[0]
+    S = np.tile(z0, (d + 1, 1))
+    for j in range(d):
+        S[j + 1, j] = z0[j] + step if z0[j] + step <= 1.0 else z0[j] - step
+    return S
