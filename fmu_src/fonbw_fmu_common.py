@@ -1,0 +1,373 @@
+"""Shared plumbing of the fonbw FMUs (pythonfmu slaves). No numerics here.
+
+Everything numerical comes from the `fonbw` package, which the FMU carries in
+its resources folder (pythonfmu puts that folder first on sys.path when it
+instantiates the slave), so an FMU runs in a fresh Python process that has
+numpy/numba/scipy/control but no installed `fonbw`.
+
+Why the slave methods never raise: pythonfmu's C layer turns any Python
+exception into fmi2Fatal *and* releases the Python slave object on the spot
+(`cleanPyObject`), so the next call on that instance (even fmi2FreeInstance)
+touches freed memory -- checked with pythonfmu 0.7.0 + fmpy: a slave raising
+in exit_initialization_mode segfaults the host at the following call.  A bad parameter must not be able to take the host down,
+so every entry point here catches, logs with an FMI status and reports through
+the channels that pythonfmu does offer: a log line with status fmi2Error at
+initialization, and fmi2Discard from fmi2DoStep (do_step returning False).
+
+This module is imported by every fonbw FMU under the same name; FMUs built by
+one build_fmu.py run carry identical copies, so sharing it is harmless.
+"""
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+from typing import Any, Dict, List, Optional
+from xml.etree.ElementTree import Element, SubElement
+
+from pythonfmu import Fmi2Slave, Fmi2Causality, Fmi2Variability, Real, String
+from pythonfmu.default_experiment import DefaultExperiment
+from pythonfmu.enums import Fmi2Initial, Fmi2Status
+
+# Name of the parameter-set file inside an FMU's resources folder.
+MODEL_RESOURCE = "fonbw_model.json"
+PLANT_RESOURCE = "fonbw_plant.json"
+
+# A communication step h is accepted when h/dt is within this many internal
+# steps of a whole number >= 1.  Not zero: masters compute h as a difference of
+# absolute times (fmpy: t_{k+1} - t_k), which is off by a few ulps of t.
+STEP_MULTIPLE_TOL = 1e-6
+
+MEMORY_ENGINES = ("fast", "exact", "short", "oustaloup")
+
+# SI base-unit exponents of the unit symbols used by these FMUs.  Unit names are
+# written like "um/V2" (micrometre per volt squared): a product of symbols with
+# optional integer powers, an optional single "/" for the denominator.
+_SYMBOLS: Dict[str, tuple] = {
+    "V": ({"kg": 1, "m": 2, "s": -3, "A": -1}, 1.0),
+    "um": ({"m": 1}, 1e-6),
+    "m": ({"m": 1}, 1.0),
+    "s": ({"s": 1}, 1.0),
+    "A": ({"A": 1}, 1.0),
+    "N": ({"kg": 1, "m": 1, "s": -2}, 1.0),
+    "rad": ({"rad": 1}, 1.0),
+}
+
+
+def base_unit(name: str) -> Optional[Dict[str, str]]:
+    """BaseUnit attributes (SI exponents, factor) for a unit name, or None if
+    the name uses a symbol not known here (the Unit is then written without a
+    BaseUnit, which FMI 2.0 allows)."""
+    if name == "1":
+        return {}
+    num, _, den = name.partition("/")
+    exps: Dict[str, int] = {}
+    factor = 1.0
+    for part, sign in ((num, 1), (den, -1)):
+        for tok in filter(None, part.split(".")):
+            if tok == "1":
+                continue
+            m = re.fullmatch(r"([A-Za-z]+)(-?\d*)", tok)
+            if not m or m.group(1) not in _SYMBOLS:
+                return None
+            p = sign * int(m.group(2) or 1)
+            e, f = _SYMBOLS[m.group(1)]
+            for k, v in e.items():
+                exps[k] = exps.get(k, 0) + p * v
+            factor *= f ** p
+    attrs = {k: str(v) for k, v in exps.items() if v != 0}
+    if factor != 1.0:
+        attrs["factor"] = repr(factor)
+    return attrs
+
+
+class UReal(Real):
+    """pythonfmu Real with a unit, and a start value written so that it reads
+    back bit for bit (repr, 17 significant digits when needed; pythonfmu's own
+    '%.16g' can lose the last bit of an identified parameter)."""
+
+    def __init__(self, name: str, unit: Optional[str] = None, **kwargs):
+        super().__init__(name, **kwargs)
+        self.unit = unit
+
+    def to_xml(self) -> Element:
+        node = super().to_xml()
+        real = node.find("Real")
+        if self.start is not None:
+            real.set("start", repr(float(self.start)))
+        if self.unit:
+            real.set("unit", self.unit)
+        return node
+
+
+def read_json(path: Path) -> Dict[str, Any]:
+    with open(path, "r", encoding="utf-8") as f:
+        return json.load(f)
+
+
+def fonbw_parameters(d: Dict[str, Any]) -> Dict[str, Any]:
+    """The FONBW parameters of a fonbw model dictionary (as written by
+    fonbw's save()/to_dict()).  Plain JSON reading, no fonbw import, so that
+    building the model description does not pay the numba start-up."""
+    p = d.get("params", d)
+    out = {k: p[k] for k in ("kh", "rho", "sigma", "n", "lam1", "lam2")}
+    out["ku"] = [float(k) for k in p["ku"]]
+    out["memory"] = str(d.get("memory", p.get("memory", "fast")))
+    return out
+
+
+class FonbwSlaveBase(Fmi2Slave):
+    """Single-input single-output fixed-step slave around a fonbw stepper.
+
+    Sampling convention (zero-order hold, no direct feedthrough): doStep(t, h)
+    holds the input value set before the call over (t, t+h], advances the
+    stepper m = h/dt internal steps with it and publishes the last stepper
+    output as the output at t+h.  Hence with h = dt the output at t_{k+1} is
+    the library's y[k] = F(u[0..k]).  Before the first step the output is 0
+    (system at rest, no sample processed).  Outputs therefore depend on no
+    input at a communication point: ModelStructure says dependencies="".
+    """
+
+    author = "fonbw"
+    license = "MIT"
+    copyright = "fonbw authors"
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self._stepper = None
+        self._built_from = None      # parameter snapshot the stepper was built from
+        self._fault: Optional[str] = "not initialized (fmi2ExitInitializationMode not called yet)"
+        self._in_name = self._out_name = None
+        self._x_in = 0.0
+        self._x_out = 0.0
+        self._param_names: List[str] = []
+        self.dt = 1e-4
+
+    # ---- registration helpers ------------------------------------------------
+    def _parameter(self, name: str, start: float, unit: Optional[str], description: str):
+        setattr(self, name, float(start))
+        self._param_names.append(name)
+        self.register_variable(UReal(
+            name, unit=unit, description=description,
+            causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
+            initial=Fmi2Initial.exact))
+
+    def _string_parameter(self, name: str, start: str, description: str):
+        setattr(self, name, str(start))
+        self._param_names.append(name)
+        self.register_variable(String(
+            name, description=description, causality=Fmi2Causality.parameter,
+            variability=Fmi2Variability.fixed, initial=Fmi2Initial.exact))
+
+    def _io(self, inp: tuple, out: tuple):
+        """Register the input (name, unit, description) and output."""
+        self._in_name, self._out_name = inp[0], out[0]
+
+        def set_in(v):
+            self._x_in = float(v)
+
+        self.register_variable(UReal(
+            inp[0], unit=inp[1], description=inp[2], causality=Fmi2Causality.input,
+            variability=Fmi2Variability.continuous, getter=lambda: self._x_in, setter=set_in))
+        self.register_variable(UReal(
+            out[0], unit=out[1], description=out[2], causality=Fmi2Causality.output,
+            variability=Fmi2Variability.continuous, initial=Fmi2Initial.calculated,
+            getter=lambda: self._x_out, setter=None))
+
+    def _default_experiment(self, stop_time: float = 2.0):
+        self.default_experiment = DefaultExperiment(start_time=0.0, stop_time=stop_time,
+                                                    step_size=self.dt)
+
+    # ---- to be provided by subclasses ----------------------------------------
+    def _check_parameters(self) -> List[str]:
+        """Problems with the current parameter values (empty list: fine)."""
+        return []
+
+    def _build(self):
+        """Return a fresh stepper object for the current parameter values."""
+        raise NotImplementedError
+
+    # ---- FMI entry points ----------------------------------------------------
+    def _params_snapshot(self):
+        return tuple(getattr(self, n) for n in self._param_names)
+
+    def _check_dt(self) -> List[str]:
+        dt = self.dt
+        if not (isinstance(dt, float) and math.isfinite(dt) and dt > 0.0):
+            return [f"dt = {dt!r} s must be a finite number > 0"]
+        return []
+
+    def _try_build(self) -> bool:
+        try:
+            problems = self._check_dt() + self._check_parameters()
+            if not problems:
+                stepper = self._build()
+                # Warm-up step then reset: numba compiles on the first call;
+                # do it now rather than inside the first (timed) doStep.
+                stepper.step(0.0)
+                stepper.reset()
+        except Exception as e:  # the library refuses the parameter set
+            problems = [f"{type(e).__name__}: {e}"]
+        if problems:
+            self._stepper = None
+            self._fault = "invalid parameters: " + "; ".join(problems)
+            self.log(f"{self.instance_name}: {self._fault}", Fmi2Status.error)
+            return False
+        self._stepper = stepper
+        self._built_from = self._params_snapshot()
+        self._fault = None
+        return True
+
+    def exit_initialization_mode(self):
+        self._x_out = 0.0
+        self._try_build()
+
+    def do_step(self, current_time: float, step_size: float) -> bool:
+        stepper = self._stepper
+        if stepper is None:
+            self.log(f"{self.instance_name}: doStep at t={current_time!r} refused: {self._fault}",
+                     Fmi2Status.discard)
+            return False
+        m = step_size / self.dt
+        k = round(m) if math.isfinite(m) else 0
+        if k < 1 or abs(m - k) > STEP_MULTIPLE_TOL:
+            self.log(f"{self.instance_name}: doStep at t={current_time!r} refused: communication "
+                     f"step {step_size!r} s is not a whole multiple of the internal step "
+                     f"dt = {self.dt!r} s (ratio {m!r}); no resampling is done",
+                     Fmi2Status.discard)
+            return False
+        try:
+            u = self._x_in
+            step = stepper.step
+            y = 0.0
+            for _ in range(k):
+                y = step(u)
+            self._x_out = float(y)
+        except Exception as e:
+            self.log(f"{self.instance_name}: doStep at t={current_time!r} failed: "
+                     f"{type(e).__name__}: {e}", Fmi2Status.error)
+            return False
+        return True
+
+    # ---- FMU state: variables + the stepper's full memory ----------------------
+    def _get_fmu_state(self) -> Dict[str, Any]:
+        state = {v.name: v.getter() for v in self.vars.values()}
+        state["__fault__"] = self._fault
+        state["__stepper__"] = (None if self._stepper is None
+                                else [float(x) for x in self._stepper.get_state()])
+        return state
+
+    def _set_fmu_state(self, state: Dict[str, Any]):
+        try:
+            import numpy as np
+            for v in self.vars.values():
+                if v.name in state and v.setter is not None:
+                    v.setter(state[v.name])
+            self._x_out = float(state.get(self._out_name, 0.0))
+            arr = state.get("__stepper__")
+            if arr is None:
+                self._stepper = None
+                self._fault = state.get("__fault__") or "restored state has no stepper"
+                return
+            if self._stepper is None or self._built_from != self._params_snapshot():
+                if not self._try_build():
+                    return
+            self._stepper.set_state(np.asarray(arr, dtype=np.float64))
+            self._fault = None
+        except Exception as e:
+            self._stepper = None
+            self._fault = f"FMU state could not be restored: {type(e).__name__}: {e}"
+            self.log(f"{self.instance_name}: {self._fault}", Fmi2Status.error)
+
+    # ---- model description: units, dependencies, initial unknowns ------------
+    def to_xml(self, model_options: Dict[str, str] = dict()) -> Element:
+        root = super().to_xml(model_options)
+        units = sorted({v.unit for v in self.vars.values() if getattr(v, "unit", None)})
+        if units:
+            defs = Element("UnitDefinitions")
+            for name in units:
+                unit = SubElement(defs, "Unit", {"name": name})
+                attrs = base_unit(name)
+                if attrs is not None:
+                    SubElement(unit, "BaseUnit", attrs)
+            # schema order: CoSimulation, UnitDefinitions, ..., LogCategories
+            pos = list(root).index(root.find("CoSimulation")) + 1
+            root.insert(pos, defs)
+        structure = root.find("ModelStructure")
+        for child in list(structure):
+            structure.remove(child)
+        outs = [i + 1 for i, v in enumerate(self.vars.values())
+                if v.causality == Fmi2Causality.output]
+        if outs:
+            # dependencies="" : no direct feedthrough at communication points
+            # (see the class docstring), both in steps and at initialization.
+            for tag in ("Outputs", "InitialUnknowns"):
+                node = SubElement(structure, tag)
+                for i in outs:
+                    SubElement(node, "Unknown", {"index": str(i), "dependencies": ""})
+        return root
+
+
+class FonbwModelSlave(FonbwSlaveBase):
+    """Common part of the hysteresis and compensator FMUs: the FONBW parameter
+    set as FMU parameters, start values from the build-time parameter set."""
+
+    def _register_fonbw_parameters(self):
+        # Resource file written by build_fmu.py: {"model": <fonbw model dict>, "dt": s}
+        res = read_json(Path(self.resources) / MODEL_RESOURCE)
+        p = fonbw_parameters(res["model"])
+        self._n_ku = len(p["ku"])
+        for i, k in enumerate(p["ku"], start=1):
+            unit = "um/V" if i == 1 else f"um/V{i}"
+            self._parameter(f"ku{i}", k, unit,
+                            f"Coefficient of u^{i} in the polynomial g(u) = sum_i ku_i u^i "
+                            f"(eq. 10), {unit}")
+        self._parameter("kh", p["kh"], "um",
+                        "Gain of the normalized hysteretic state: y = g(u) + kh*h (eq. 9)")
+        self._parameter("rho", p["rho"], "1/V",
+                        "Shape parameter rho of the normalized Bouc-Wen equation (eq. 11); "
+                        "with fractional orders its time unit is s^(lam2-lam1), not shown")
+        self._parameter("sigma", p["sigma"], "1",
+                        "Shape parameter sigma of the normalized Bouc-Wen equation (eq. 11)")
+        self._parameter("n", p["n"], "1",
+                        "Exponent n >= 1 of the normalized Bouc-Wen equation (eq. 11)")
+        self._parameter("lam1", p["lam1"], "1",
+                        "Fractional order lambda1 in (0, 1] of the input derivative (eq. 11)")
+        self._parameter("lam2", p["lam2"], "1",
+                        "Fractional order lambda2 in (0, 1] of the hysteretic-state "
+                        "derivative (eq. 11)")
+        self._string_parameter("memory", p["memory"],
+                               "Grunwald-Letnikov memory engine: fast (default, truncated "
+                               "history + geometric tail modes), exact (full history, O(k) "
+                               "per step), short (short-memory window, inaccurate), "
+                               "oustaloup (refined Oustaloup filter of the paper's toolbox)")
+        self._parameter("dt", float(res.get("dt", 1e-4)), "s",
+                        "Internal fixed step of the GL discretization; every communication "
+                        "step must be a whole multiple of it")
+
+    def _model_kwargs(self) -> Dict[str, Any]:
+        return dict(ku=[getattr(self, f"ku{i}") for i in range(1, self._n_ku + 1)],
+                    kh=self.kh, rho=self.rho, sigma=self.sigma, n=self.n,
+                    lam1=self.lam1, lam2=self.lam2, memory=self.memory)
+
+    def _check_parameters(self) -> List[str]:
+        # Only what must hold for any memory engine; the library checks the rest.
+        kw = self._model_kwargs()
+        problems = [f"{k} = {v!r} is not finite" for k, v in kw.items()
+                    if k not in ("ku", "memory") and not math.isfinite(v)]
+        problems += [f"ku{i} = {v!r} is not finite" for i, v in enumerate(kw["ku"], 1)
+                     if not math.isfinite(v)]
+        if math.isfinite(self.n) and self.n < 1.0:
+            problems.append(f"n = {self.n!r} must be >= 1")
+        for k in ("lam1", "lam2"):
+            v = kw[k]
+            if math.isfinite(v) and not (0.0 < v <= 1.0):
+                problems.append(f"{k} = {v!r} must lie in (0, 1]")
+        if self.memory not in MEMORY_ENGINES:
+            problems.append(f"memory = {self.memory!r} is not one of {', '.join(MEMORY_ENGINES)}")
+        return problems
+
+    def _fonbw_model(self):
+        import fonbw  # the copy bundled in resources/ (first on sys.path)
+        return fonbw.FONBW(**self._model_kwargs())
