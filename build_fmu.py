@@ -72,9 +72,12 @@ def model_resource(params: Path, dt: float, fonbw_src: Path) -> dict:
         model = fonbw.load_model(str(params))
     except Exception as e:
         raise BuildError(f"{params}: cannot load parameter set: {e}") from e
-    if type(model).__name__ != "FONBW":
-        raise BuildError(f"{params}: FMUs wrap the FONBW model, got {type(model).__name__}")
-    return {"model": model.to_dict(), "dt": float(dt)}
+    if not isinstance(model, fonbw.FONBW):  # NBW is a FONBW with lam1 = lam2 = 1
+        raise BuildError(f"{params}: the FMUs wrap the FONBW model, got kind {model.kind!r}")
+    p = dict(model.params)
+    p.setdefault("lam1", 1.0)
+    p.setdefault("lam2", 1.0)
+    return {"model": fonbw.FONBW(**p).to_dict(), "dt": float(dt)}
 
 
 def statespace_resource(sys_, input=("x", "um", "Plant input"),

@@ -120,14 +120,19 @@ def fonbw_parameters(d: Dict[str, Any]) -> Dict[str, Any]:
 class FonbwSlaveBase(Fmi2Slave):
     """Single-input single-output fixed-step slave around a fonbw stepper.
 
-    Sampling convention (zero-order hold, no direct feedthrough): doStep(t, h)
-    holds the input value set before the call over (t, t+h], advances the
-    stepper m = h/dt internal steps with it and publishes the last stepper
-    output as the output at t+h.  Hence with h = dt the output at t_{k+1} is
-    the library's y[k] = F(u[0..k]).  Before the first step the output is 0
-    (system at rest, no sample processed).  Outputs therefore depend on no
-    input at a communication point: ModelStructure says dependencies="".
+    Sampling convention: doStep(t, h) holds the input value set before the
+    call over (t, t+h] (zero-order hold), advances the stepper m = h/dt
+    internal steps with it, and the output is the value at t+h with that input
+    still held.  For the hysteresis and the compensator that is the last
+    stepper output, so with h = dt the output at t_{k+1} is the library's
+    y[k] = F(u[0..k]); before the first step it is 0 (at rest, no sample
+    processed).  These outputs do not react to an input set at a communication
+    point until the next doStep, so ModelStructure says dependencies="" (no
+    direct feedthrough, hence no algebraic loop for the master).  Subclasses
+    with a true feedthrough override _output() and set _feedthrough.
     """
+
+    _feedthrough = False
 
     author = "fonbw"
     license = "MIT"
@@ -173,7 +178,10 @@ class FonbwSlaveBase(Fmi2Slave):
         self.register_variable(UReal(
             out[0], unit=out[1], description=out[2], causality=Fmi2Causality.output,
             variability=Fmi2Variability.continuous, initial=Fmi2Initial.calculated,
-            getter=lambda: self._x_out, setter=None))
+            getter=lambda: self._output(), setter=None))
+
+    def _output(self) -> float:
+        return self._x_out
 
     def _default_experiment(self, stop_time: float = 2.0):
         self.default_experiment = DefaultExperiment(start_time=0.0, stop_time=stop_time,
@@ -199,6 +207,7 @@ class FonbwSlaveBase(Fmi2Slave):
         return []
 
     def _try_build(self) -> bool:
+        what = "invalid parameters"
         try:
             problems = self._check_dt() + self._check_parameters()
             if not problems:
@@ -207,11 +216,13 @@ class FonbwSlaveBase(Fmi2Slave):
                 # do it now rather than inside the first (timed) doStep.
                 stepper.step(0.0)
                 stepper.reset()
-        except Exception as e:  # the library refuses the parameter set
-            problems = [f"{type(e).__name__}: {e}"]
+        except ValueError as e:  # the library refuses the parameter set
+            problems = [str(e)]
+        except Exception as e:  # anything else: say so, do not blame the parameters
+            what, problems = "cannot build the model", [f"{type(e).__name__}: {e}"]
         if problems:
             self._stepper = None
-            self._fault = "invalid parameters: " + "; ".join(problems)
+            self._fault = f"{what}: " + "; ".join(problems)
             self.log(f"{self.instance_name}: {self._fault}", Fmi2Status.error)
             return False
         self._stepper = stepper
@@ -299,13 +310,16 @@ class FonbwSlaveBase(Fmi2Slave):
             structure.remove(child)
         outs = [i + 1 for i, v in enumerate(self.vars.values())
                 if v.causality == Fmi2Causality.output]
-        if outs:
-            # dependencies="" : no direct feedthrough at communication points
-            # (see the class docstring), both in steps and at initialization.
-            for tag in ("Outputs", "InitialUnknowns"):
+        ins = [i + 1 for i, v in enumerate(self.vars.values())
+                if v.causality == Fmi2Causality.input]
+        # dependencies="" means: depends on no input at a communication point
+        # (see the class docstring); same at initialization.
+        deps = " ".join(map(str, ins)) if self._feedthrough else ""
+        for tag in ("Outputs", "InitialUnknowns"):
+            if outs:
                 node = SubElement(structure, tag)
                 for i in outs:
-                    SubElement(node, "Unknown", {"index": str(i), "dependencies": ""})
+                    SubElement(node, "Unknown", {"index": str(i), "dependencies": deps})
         return root
 
 

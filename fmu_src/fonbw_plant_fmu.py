@@ -1,5 +1,10 @@
 """FMU script: linear time-invariant plant (python-control state space), SISO.
 
+Output convention: y(t) = C x(t) + D u(t) read live from the stepper, so the
+output at t+h is the exact zero-order-hold response at the end of the step
+(fmpy's result then equals control.forced_response of the c2d system sample
+for sample) and a plant with D != 0 declares its direct feedthrough.
+
 The matrices ride in resources/fonbw_plant.json (written by build_fmu.py from a
 control.StateSpace); the stepping is fonbw.plant.LinearStepper.  Input and
 output names, units and descriptions come from that file too.  Own module
@@ -28,6 +33,14 @@ class FonbwLinearPlant(FonbwSlaveBase):
                         "(zero-order hold); every communication step must be a whole "
                         "multiple of it")
         self._default_experiment()
+        # y = C x + D u: a nonzero D is a direct feedthrough at communication points
+        self._feedthrough = any(float(d) != 0.0 for row in spec["D"] for d in row)
+
+    def _output(self) -> float:
+        # Exact zero-order-hold output at the communication point: C x(t) + D u(t)
+        # with the state after the last step and the input as currently set.
+        s = self._stepper
+        return 0.0 if s is None else s.output(self._x_in)
 
     def _check_parameters(self):
         sys_dt = self._spec.get("sys_dt")
