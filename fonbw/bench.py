@@ -46,6 +46,8 @@ between 0.1 s and 10 s, Y Σ g_j (1 - e^(-t/tau_j)) in closed form.
 Randomness (noise) comes from one generator seeded with `seed`; every call of
 :meth:`Bench.run` draws fresh noise, like repeating a measurement, and the
 sequence of calls is reproducible. Every run starts from rest.
+:meth:`Bench.stepper` gives the same bench one sample at a time
+(:class:`BenchStepper`, bit-identical to :meth:`Bench.run`) for feedback loops.
 """
 from __future__ import annotations
 
@@ -61,6 +63,7 @@ from .io import Record, write_csv
 
 __all__ = [
     "Bench",
+    "BenchStepper",
     "BenchParams",
     "eq19_input",
     "sine_input",
@@ -387,11 +390,18 @@ class Bench:
         if self.noise_std > 0:
             x = x + self._rng.normal(0.0, self.noise_std, x.size)
         if self.quant_bits is not None:
-            lo, _ = self.params.adc_range
-            q = self.adc_step
-            code = np.clip(np.round((x - lo) / q), 0, 2**self.quant_bits - 1)
-            x = lo + code * q
+            x = self._adc(x)
         return x
+
+    def _adc(self, x):
+        lo, _ = self.params.adc_range
+        q = self.adc_step
+        code = np.clip(np.round((x - lo) / q), 0, 2**self.quant_bits - 1)
+        return lo + code * q
+
+    def stepper(self, noiseless: bool = False) -> "BenchStepper":
+        """A sample-by-sample bench from rest, for closed loops (see :class:`BenchStepper`)."""
+        return BenchStepper(self, noiseless)
 
     # -- records ------------------------------------------------------------
 
@@ -481,6 +491,121 @@ class Bench:
         base = dict(u_min=-150.0, u_max=150.0, drift=True, params=pr)
         base.update(kw)
         return cls(seed, fs, **base)
+
+
+class BenchStepper:
+    """The bench one sample at a time, for feedback loops around it.
+
+    ``y_k = step(u_k)`` gives the measured displacement [µm] for the command
+    u_k [V]; the sequence equals :meth:`Bench.run` on the same input (bit for
+    bit, noise included: both draw from the bench's generator in the same
+    order). The measurement at sample k depends on u_k only through the
+    sensor and amplifier poles' feedthrough, which is zero under ZOH, plus the
+    `delay` — so a controller may use ``y_k`` to compute ``u_k`` only if it
+    calls :meth:`output` first; :meth:`step` then applies ``u_k``.
+
+    Attributes
+    ----------
+    voltage : float
+        PEA voltage [V] of the last step.
+    displacement : float
+        True displacement [µm] of the last step (before the sensor).
+    """
+
+    def __init__(self, bench: Bench, noiseless: bool = False):
+        b = self.bench = bench
+        self.noiseless = bool(noiseless)
+        pr = b.params
+        self._amp = _plant.LinearStepper(b._amp.sys)
+        self._creep = _plant.LinearStepper(b._creep.sys)
+        self._mech = _plant.LinearStepper(b._mech.sys)
+        self._sens = _plant.LinearStepper(b._sens.sys)
+        self._alpha = pr.rate_alpha if b.rate_dependent else 0.0
+        self._w0 = float(pr.weights @ pr.thresholds)
+        self._v1, self._w1 = np.zeros(1), np.zeros(1)
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to rest (the noise generator is not rewound)."""
+        for s in (self._amp, self._creep, self._mech, self._sens):
+            s.reset()
+        self._z = self.bench.params.thresholds.copy()
+        self._rate = np.zeros(2)
+        self._buf = np.zeros(self.bench.delay)
+        self._slew_prev = 0.0
+        self.k = 0
+        self.voltage = 0.0
+        self.displacement = 0.0
+
+    def get_state(self) -> dict:
+        """Everything needed to replay from here, the generator state included."""
+        return {
+            "k": self.k, "z": self._z.copy(), "rate": self._rate.copy(), "buf": self._buf.copy(),
+            "slew_prev": self._slew_prev,
+            "lin": [s.get_state() for s in (self._amp, self._creep, self._mech, self._sens)],
+            "rng": self.bench._rng.bit_generator.state,
+        }
+
+    def set_state(self, st: dict) -> None:
+        self.k = int(st["k"])
+        self._z, self._rate, self._buf = st["z"].copy(), st["rate"].copy(), st["buf"].copy()
+        self._slew_prev = float(st["slew_prev"])
+        for s, x in zip((self._amp, self._creep, self._mech, self._sens), st["lin"]):
+            s.set_state(x)
+        self.bench._rng.bit_generator.state = st["rng"]
+
+    def step(self, u: float) -> float:
+        """Apply the command u_k [V]; return the measured displacement y_k [µm]."""
+        b, pr = self.bench, self.bench.params
+        u = float(u)
+        if not math.isfinite(u):
+            raise ValueError(f"command at sample {self.k} is not finite: {u!r}")
+        if b.delay:
+            # ring buffer: the slot of sample k - delay is reused for sample k
+            j = self.k % b.delay
+            u, self._buf[j] = float(self._buf[j]), u
+        v = min(max(u, b.u_min), b.u_max)
+        g = pr.amp_gain
+        if b.dac_bits is not None:
+            q = 20.0 / 2.0**b.dac_bits
+            v = round(v / g / q) * (q * g)  # round-half-even, as np.round
+        if pr.slew_rate is not None:
+            m = pr.slew_rate * b.dt
+            v = self._slew_prev + min(max(v - self._slew_prev, -m), m)
+            self._slew_prev = v
+        if b.amplifier:
+            v = self._amp.step(v / g)
+        self.voltage = v
+        self._v1[0] = v
+        _rdpi_kernel(self._v1, b.dt, pr.thresholds, pr.weights, self._alpha, pr.rate_tau,
+                     self._z, self._rate, self._w1)
+        w = float(self._w1[0]) - self._w0
+        if b.asymmetric:
+            a1, a2, a3 = pr.poly
+            y = w * (a1 + w * (a2 + w * a3))
+        else:
+            y = b._line * w
+        if b.creep:
+            y = self._creep.step(y)
+        if b.dynamics:
+            y = self._mech.step(y)
+        if b.drift:
+            t = self.k * b.dt
+            y = y + pr.drift_rate * pr.drift_tau * -math.expm1(-t / pr.drift_tau)
+        self.displacement = y
+        if b.dynamics:
+            y = self._sens.step(y)
+        self.k += 1
+        if self.noiseless:
+            return y
+        if b.noise_std > 0:
+            y = y + b._rng.normal(0.0, b.noise_std)
+        if b.quant_bits is not None:
+            lo, _ = pr.adc_range
+            q = b.adc_step
+            y = lo + min(max(round((y - lo) / q), 0), 2**b.quant_bits - 1) * q
+        return y
+
 
 
 # ---------------------------------------------------------------------------
