@@ -43,6 +43,15 @@ Creep uses three first-order modes (0.1, 1, 10 s, gain 1 % each): after a
 step the displacement rises by about 1 % of the step per decade of time
 between 0.1 s and 10 s, Y Σ g_j (1 - e^(-t/tau_j)) in closed form.
 
+Signature of the defaults (measured by tests/test_bench.py): stroke 19.9 µm
+at 120 V; loop width at 1 Hz 13.6 % of the stroke for the operator alone and
+14.6 % for the full bench, at 20 Hz 15.8 % and 21.7 % (the amplifier,
+mechanics, sensor and the one-sample delay add 1.6° of lag at 20 Hz);
+asymmetry (departure from point symmetry) 6 % of the stroke; noise 0.015 µm;
+16-bit ADC over ±40 µm (1.2 nm steps); 16-bit D/A over ±10 V (3.7 mV at the
+PEA); one sample of delay; drift off (when on: 0.01 µm/s initially, bending
+over with tau_th = 60 s).
+
 Randomness (noise) comes from one generator seeded with `seed`; every call of
 :meth:`Bench.run` draws fresh noise, like repeating a measurement, and the
 sequence of calls is reproducible. Every run starts from rest.
@@ -499,10 +508,15 @@ class BenchStepper:
     ``y_k = step(u_k)`` gives the measured displacement [µm] for the command
     u_k [V]; the sequence equals :meth:`Bench.run` on the same input (bit for
     bit, noise included: both draw from the bench's generator in the same
-    order). The measurement at sample k depends on u_k only through the
-    sensor and amplifier poles' feedthrough, which is zero under ZOH, plus the
-    `delay` — so a controller may use ``y_k`` to compute ``u_k`` only if it
-    calls :meth:`output` first; :meth:`step` then applies ``u_k``.
+    order). With the default chain y_k does not depend on u_k (the
+    amplifier and mechanics are strictly proper and there is a one-sample
+    delay); with every effect off it does. In a feedback loop use the value
+    returned by the previous call as the measurement, the one-sample
+    computational delay of a real DAQ loop::
+
+        y = 0.0
+        for r_k in r:
+            y = st.step(controller.step(r_k, y))
 
     Attributes
     ----------
