@@ -64,6 +64,7 @@ import math
 import os
 from dataclasses import dataclass, field, asdict
 
+import control as ct
 import numpy as np
 from numba import njit
 
@@ -114,6 +115,9 @@ class BenchParams:
     creep_gain [-]. Amplifier: amp_gain [V/V], R_out [Ω], C_load [F],
     slew_rate [V/s] or None. Mechanics: f_res [Hz], zeta [-]. Sensor:
     sensor_bw [Hz], adc_range [µm]. Drift: drift_rate [µm/s], drift_tau [s].
+
+    A :class:`Bench` reads these once when it is built; changing them
+    afterwards does not reach its linear blocks, so build a new bench.
     """
 
     thresholds: np.ndarray = field(default_factory=play_thresholds)
@@ -142,8 +146,9 @@ class BenchParams:
         if self.weights is None:
             self.weights = _default_weights(r)
         self.weights = np.ascontiguousarray(self.weights, dtype=float)
-        if self.weights.shape != r.shape or not np.all(np.isfinite(self.weights)):
-            raise ValueError(f"weights must be {r.size} finite numbers, one per threshold")
+        if self.weights.shape != r.shape or not np.all(np.isfinite(self.weights)) or np.any(self.weights < 0):
+            # negative weights can make the loop non-monotone: not a physical stack
+            raise ValueError(f"weights must be {r.size} finite numbers ≥ 0, one per threshold")
         if len(self.poly) != 3 or not all(math.isfinite(a) for a in self.poly):
             raise ValueError("poly must be three finite coefficients (a1, a2, a3)")
         if len(self.creep_tau) != len(self.creep_gain) or any(t <= 0 for t in self.creep_tau):
@@ -302,8 +307,6 @@ class Bench:
         self._sens = _plant.LinearStepper(_plant.sensor(pr.sensor_bw), self.dt)
         tau = np.asarray(pr.creep_tau, dtype=float)
         g = np.asarray(pr.creep_gain, dtype=float)
-        import control as ct
-
         creep_sys = ct.ss(np.diag(-1.0 / tau), (1.0 / tau).reshape(-1, 1), g.reshape(1, -1), [[1.0]])
         self._creep = _plant.LinearStepper(creep_sys, self.dt)
         a1, a2, a3 = pr.poly

@@ -214,6 +214,10 @@ def test_validation_messages():
         B.Bench(delay=1.5)
     with pytest.raises(ValueError, match="thresholds"):
         B.BenchParams(thresholds=[-1.0, 2.0])
+    with pytest.raises(ValueError, match="weights"):
+        B.BenchParams(thresholds=[0.0, 2.0], weights=[1.0, -0.1])
+    with pytest.raises(ValueError, match="jitter"):
+        B.Bench().logger_record(np.zeros(10), jitter=0.5)
 
 
 def test_stepper_equals_run_bit_for_bit():
