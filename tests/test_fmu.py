@@ -1,0 +1,486 @@
+"""Tests of the FMUs (issue 5): FonbwHysteresis, FonbwCompensator, FonbwLinearPlant.
+
+Layout, and why:
+
+* The FMUs are built once per session into a pytest tmp dir by running
+  build_fmu.py in a subprocess (the builder imports the slave scripts and
+  edits sys.path; the test process stays clean).
+* Every FMU is loaded only in fresh subprocesses started with sys.executable
+  and with the tmp dir as working directory: an FMU loaded into the test
+  process would silently use the test process's imports, which hides a
+  missing bundled file.  One driver process per master (fmpy, libcosim) runs
+  all scenarios and writes arrays + a JSON report; the tests assert on those.
+* References come from a separate subprocess that imports this repository's
+  fonbw (the FMU side must use its bundled copy; that is checked too), and,
+  for the plant, from python-control in the test process.
+
+Sampling convention checked here (fmu_src/fonbw_fmu_common.py): with h = dt
+the FMU output at t_{k+1} is the library's y[k] = F(u[0..k]); the plant
+output at t_k is the exact ZOH response, i.e. control.forced_response of the
+c2d system at sample k.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DT = 1e-4
+N = 20000              # 2 s at 10 kHz
+N_SHORT = 4000         # instance-independence and libcosim runs
+REL_TOL = 1e-10
+# Parameters changed through fmi2SetReal in initialization mode (instance B)
+SET_PARAMS = {"lam1": 0.9, "lam2": 0.8, "kh": -2.5e4}
+# Parameter changes of the second build (--params), loaded next to the default
+ALT_PARAMS = {"lam2": 0.7, "sigma": 5.0e4, "n": 1.5}
+# Each refused parameter set: name -> value (the name must appear in the log)
+BAD_PARAMS = [("lam1", 1.5), ("n", 0.5), ("dt", -1e-4), ("kh", float("nan")),
+              ("rho", -1.0), ("memory", "bogus")]
+
+
+def _signals():
+    t = np.arange(N + 1) * DT
+    u = 60.0 + 50.0 * np.sin(2 * np.pi * 5.0 * t) + 5.0 * np.sin(2 * np.pi * 40.0 * t)  # V
+    y_ref = 10.0 + 8.0 * np.sin(2 * np.pi * 5.0 * t) + 0.5 * np.sin(2 * np.pi * 40.0 * t)  # um
+    h = 10.0 + 5.0 * np.sin(2 * np.pi * 300.0 * t) + 5.0 * (t >= 0.05)  # um
+    return t, u, y_ref, h
+
+
+def _run(args, cwd, timeout=600):
+    env = dict(os.environ)
+    env.pop("PYTHONPATH", None)  # nothing but the FMU may provide fonbw
+    r = subprocess.run([sys.executable, *map(str, args)], cwd=str(cwd), env=env,
+                       capture_output=True, text=True, timeout=timeout)
+    if r.returncode != 0:
+        pytest.fail(f"subprocess {args[:2]} failed with exit code {r.returncode}\n"
+                    f"--- stdout\n{r.stdout[-4000:]}\n--- stderr\n{r.stderr[-4000:]}")
+    return r
+
+
+REFERENCE = r'''
+import json, sys
+import numpy as np
+root, work = sys.argv[1], sys.argv[2]
+sys.path.insert(0, root)
+import fonbw
+cfg = json.load(open(work + "/config.json"))
+sig = np.load(work + "/signals.npz")
+N, dt = cfg["N"], cfg["DT"]
+u, y_ref = sig["u"][:N], sig["y_ref"][:N]
+base = fonbw.load_model(root + "/models/fonbw_default.json")
+p = dict(base.params)
+alt = fonbw.FONBW(**{**p, **cfg["ALT_PARAMS"]})
+alt.save(work + "/alt.json")
+out = {
+    "y_def": base.simulate(u, dt),
+    "y_set": fonbw.FONBW(**{**p, **cfg["SET_PARAMS"]}).simulate(u[:cfg["N_SHORT"]], dt),
+    "y_alt": alt.simulate(u[:cfg["N_SHORT"]], dt),
+    # communication step 10 dt: the FMU holds u over 10 internal steps
+    "y_zoh10": base.simulate(np.repeat(u[:cfg["N_SHORT"]:10], 10), dt),
+}
+try:
+    out["u_comp"] = np.asarray(fonbw.compensate(base, y_ref, dt), dtype=float)
+    ns = cfg["N_SHORT"]
+    out["y_chain"] = base.simulate(np.concatenate([[0.0], out["u_comp"][:ns - 1]]), dt)
+except Exception as e:  # compensator not available: reported by its test
+    print("compensate:", type(e).__name__, e)
+np.savez(work + "/reference.npz", **out)
+'''
+
+FMPY_DRIVER = r'''
+import importlib.util, json, sys, traceback
+import numpy as np
+from fmpy import extract, read_model_description, simulate_fmu
+from fmpy.simulation import instantiate_fmu
+from fmpy.fmi1 import FMICallException
+
+work = sys.argv[1]
+cfg = json.load(open(work + "/config.json"))
+sig = np.load(work + "/signals.npz")
+N, NS, DT = cfg["N"], cfg["N_SHORT"], cfg["DT"]
+rep = {"fonbw_importable_before": importlib.util.find_spec("fonbw") is not None}
+arr = {}
+
+def unzip(name, sub="default"):
+    fmu = f"{work}/{sub}/{name}.fmu"
+    d = extract(fmu, f"{work}/unzip/{sub}/{name}")
+    return d, read_model_description(fmu)
+
+logs = []
+def logger(env, inst, status, cat, msg):
+    logs.append((inst.decode() if inst else "", int(status), msg.decode(errors="replace")))
+
+def new(d, md, name, params=None):
+    s = instantiate_fmu(d, md, "CoSimulation", debug_logging=True, logger=logger)
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    s.setupExperiment(startTime=0.0)
+    s.enterInitializationMode()
+    for k, v in (params or {}).items():
+        if isinstance(v, str):
+            s.setString([vr[k]], [v])
+        else:
+            s.setReal([vr[k]], [v])
+    s.exitInitializationMode()
+    return s, vr
+
+def status_of(f, *a):
+    try:
+        f(*a)
+        return 0
+    except FMICallException as e:
+        return int(e.status)
+
+H = unzip("FonbwHysteresis"); C = unzip("FonbwCompensator"); P = unzip("FonbwLinearPlant")
+A = unzip("FonbwHysteresis", "alt")
+t = sig["t"]
+
+def sim(fmu, inname, x, outname, stop=N * DT, step=DT):
+    inp = np.array(list(zip(t, x)), dtype=[("time", float), (inname, float)])
+    r = simulate_fmu(fmu[0], stop_time=stop, output_interval=step, input=inp, output=[outname])
+    return np.asarray(r[outname], dtype=float)
+
+# 1. batch runs under fmpy's own master, 2 s at 10 kHz
+arr["hyst"] = sim(H, "u", sig["u"], "y")
+arr["hyst_zoh10"] = sim(H, "u", sig["u"], "y", stop=NS * DT, step=10 * DT)
+try:
+    arr["comp"] = sim(C, "y_ref", sig["y_ref"], "u")
+except Exception as e:
+    rep["comp_error"] = f"{type(e).__name__}: {e}"
+arr["plant"] = sim(P, "h", sig["h"], "x")
+rep["fonbw_files"] = {k: getattr(m, "__file__", None) for k, m in sys.modules.items()
+                      if k == "fonbw" or k.startswith("fonbw.")}
+
+# 2. three instances in one process, stepped interleaved
+inst = [new(*H, "A"), new(*H, "B", cfg["SET_PARAMS"]), new(*A, "C")]
+ys = np.zeros((3, NS))
+for k in range(NS):
+    for s, vr in inst:
+        s.setReal([vr["u"]], [sig["u"][k]])
+    for s, vr in inst:
+        s.doStep(k * DT, DT)
+    for i, (s, vr) in enumerate(inst):
+        ys[i, k] = s.getReal([vr["y"]])[0]
+arr["indep"] = ys
+for s, vr in inst:
+    s.terminate(); s.freeInstance()
+
+# 3. state: save -> run -> restore -> run; serialize -> new instance -> run
+def run(s, vr, iname, oname, x, k0, n):
+    out = []
+    for k in range(k0, k0 + n):
+        s.setReal([vr[iname]], [x[k]])
+        s.doStep(k * DT, DT)
+        out.append(s.getReal([vr[oname]])[0])
+    return np.array(out)
+
+cases = {"hyst_fast": (H, "u", "y", sig["u"], {"memory": "fast"}),
+         "hyst_exact": (H, "u", "y", sig["u"], {"memory": "exact"}),
+         "comp": (C, "y_ref", "u", sig["y_ref"], {}),
+         "plant": (P, "h", "x", sig["h"], {})}
+rep["state"] = {}
+for name, (F, i, o, x, par) in cases.items():
+    try:
+        s, vr = new(*F, name, par)
+        run(s, vr, i, o, x, 0, 300)
+        st = s.getFMUstate()
+        blob = s.serializeFMUstate(st)
+        ya = run(s, vr, i, o, x, 300, 500)
+        s.setFMUstate(st)
+        yb = run(s, vr, i, o, x, 300, 500)
+        s.freeFMUstate(st)
+        s2, vr2 = new(*F, name + "2", par)
+        st2 = s2.deSerializeFMUstate(blob)
+        s2.setFMUstate(st2)
+        yc = run(s2, vr2, i, o, x, 300, 500)
+        s3, vr3 = new(*F, name + "3", par)
+        yfresh = run(s3, vr3, i, o, x, 300, 500)
+        arr[f"state_{name}"] = np.vstack([ya, yb, yc, yfresh])
+        rep["state"][name] = {"bytes": len(blob)}
+        for q in (s, s2, s3):
+            q.terminate(); q.freeInstance()
+    except Exception as e:
+        rep["state"][name] = {"error": f"{type(e).__name__}: {e}"}
+
+# 4. refused parameters: status of exitInitializationMode and of doStep, log lines
+rep["bad_params"] = []
+for name, value in cfg["BAD_PARAMS"]:
+    logs.clear()
+    entry = {"name": name}
+    s = instantiate_fmu(H[0], H[1], "CoSimulation", debug_logging=True, logger=logger)
+    vr = {v.name: v.valueReference for v in H[1].modelVariables}
+    s.setupExperiment(startTime=0.0)
+    s.enterInitializationMode()
+    if isinstance(value, str):
+        s.setString([vr[name]], [value])
+    else:
+        s.setReal([vr[name]], [value])
+    entry["exit_init_status"] = status_of(s.exitInitializationMode)
+    entry["init_logs"] = list(logs)
+    logs.clear()
+    entry["step_status"] = status_of(s.doStep, 0.0, DT)
+    entry["step_logs"] = list(logs)
+    s.terminate(); s.freeInstance()
+    rep["bad_params"].append(entry)
+
+# 5. refused communication steps, then a valid step still works
+logs.clear()
+s, vr = new(*H, "step")
+s.setReal([vr["u"]], [sig["u"][0]])
+rep["bad_steps"] = []
+for h in (1.5 * DT, 0.5 * DT, 0.0):
+    logs.clear()
+    rep["bad_steps"].append({"h": h, "status": status_of(s.doStep, 0.0, h), "logs": list(logs)})
+rep["after_bad_status"] = status_of(s.doStep, 0.0, 3 * DT)
+rep["after_bad_y"] = s.getReal([vr["y"]])[0]
+s2, vr2 = new(*H, "step2")
+s2.setReal([vr2["u"]], [sig["u"][0]])
+s2.doStep(0.0, 3 * DT)
+rep["fresh_3dt_y"] = s2.getReal([vr2["y"]])[0]
+
+np.savez(work + "/fmpy_out.npz", **arr)
+json.dump(rep, open(work + "/fmpy_report.json", "w"), indent=1)
+print("driver done")
+'''
+
+COSIM_DRIVER = r'''
+import json, sys
+import numpy as np
+from libcosimpy.CosimExecution import CosimExecution
+from libcosimpy.CosimSlave import CosimLocalSlave
+from libcosimpy.CosimManipulator import CosimManipulator
+from libcosimpy.CosimObserver import CosimObserver
+from libcosimpy.CosimLogging import log_output_level, CosimLogLevel
+
+work = sys.argv[1]
+cfg = json.load(open(work + "/config.json"))
+sig = np.load(work + "/signals.npz")
+NS, DT = cfg["N_SHORT"], cfg["DT"]
+log_output_level(CosimLogLevel.WARNING)
+ex = CosimExecution.from_step_size(round(DT * 1e9))  # nanoseconds
+idx = {n: ex.add_local_slave(CosimLocalSlave(fmu_path=f"{work}/default/{f}.fmu", instance_name=n))
+       for n, f in (("hyst", "FonbwHysteresis"), ("comp", "FonbwCompensator"),
+                    ("hyst2", "FonbwHysteresis"), ("plant", "FonbwLinearPlant"))}
+vr = {n: {v.name.decode(): v.reference for v in ex.slave_variables(i)} for n, i in idx.items()}
+man = CosimManipulator.create_override(); ex.add_manipulator(man)
+obs = CosimObserver.create_last_value(); ex.add_observer(obs)
+# open chain: compensator -> second hysteresis -> plant (one-step transfer per link)
+ex.connect_real_variables(idx["comp"], vr["comp"]["u"], idx["hyst2"], vr["hyst2"]["u"])
+ex.connect_real_variables(idx["hyst2"], vr["hyst2"]["y"], idx["plant"], vr["plant"]["h"])
+out = {k: np.zeros(NS) for k in ("hyst", "comp", "hyst2", "plant")}
+for k in range(NS):
+    man.slave_real_values(idx["hyst"], [vr["hyst"]["u"]], [sig["u"][k]])
+    man.slave_real_values(idx["comp"], [vr["comp"]["y_ref"]], [sig["y_ref"][k]])
+    assert ex.step(1), f"libcosim step {k} failed"
+    for n, o in (("hyst", "y"), ("comp", "u"), ("hyst2", "y"), ("plant", "x")):
+        out[n][k] = obs.last_real_values(idx[n], [vr[n][o]])[0]
+np.savez(work + "/cosim_out.npz", **out)
+print("cosim done", ex.status())
+'''
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    """Build the FMUs (default + a second parameter set) and the references."""
+    w = tmp_path_factory.mktemp("fmu")
+    t, u, y_ref, h = _signals()
+    np.savez(w / "signals.npz", t=t, u=u, y_ref=y_ref, h=h)
+    (w / "config.json").write_text(json.dumps(dict(
+        N=N, N_SHORT=N_SHORT, DT=DT, SET_PARAMS=SET_PARAMS, ALT_PARAMS=ALT_PARAMS,
+        BAD_PARAMS=BAD_PARAMS)))
+    _run(["-c", REFERENCE, ROOT, w], cwd=w)
+    _run([ROOT / "build_fmu.py", "-o", w / "default"], cwd=w)
+    _run([ROOT / "build_fmu.py", "--only", "hysteresis", "--params", w / "alt.json",
+          "-o", w / "alt"], cwd=w)
+    return w
+
+
+@pytest.fixture(scope="module")
+def ref(work):
+    return dict(np.load(work / "reference.npz"))
+
+
+@pytest.fixture(scope="module")
+def fmpy_run(work):
+    _run(["-c", FMPY_DRIVER, work], cwd=work)
+    return dict(np.load(work / "fmpy_out.npz")), json.loads((work / "fmpy_report.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def cosim_run(work):
+    _run(["-c", COSIM_DRIVER, work], cwd=work)
+    return dict(np.load(work / "cosim_out.npz"))
+
+
+def _rel(a, b):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    assert a.shape == b.shape, (a.shape, b.shape)
+    return float(np.max(np.abs(a - b)) / np.max(np.abs(b)))
+
+
+FMUS = ["default/FonbwHysteresis.fmu", "default/FonbwCompensator.fmu",
+        "default/FonbwLinearPlant.fmu", "alt/FonbwHysteresis.fmu"]
+
+
+@pytest.mark.parametrize("name", FMUS)
+def test_model_description_validates(work, name):
+    from fmpy import read_model_description
+    from fmpy.validation import validate_fmu
+
+    fmu = work / name
+    assert validate_fmu(str(fmu)) == []
+    # the command line tool says the same
+    r = _run(["-m", "fmpy", "validate", fmu], cwd=work)
+    assert "No problems found" in r.stdout
+
+    md = read_model_description(str(fmu))
+    units = {u.name for u in md.unitDefinitions}
+    for v in md.modelVariables:
+        assert v.description, f"{v.name} has no description"
+        if v.type == "Real":
+            assert v.unit in units, f"{v.name} has no declared unit"
+    outs = [v for v in md.modelVariables if v.causality == "output"]
+    assert [o.variable for o in md.outputs] == outs
+    assert [o.variable for o in md.initialUnknowns] == outs
+    # no direct feedthrough: hysteresis/compensator always, the plant because D = 0
+    assert all(o.dependencies == [] for o in md.outputs)
+    assert float(md.defaultExperiment.stepSize) == DT
+    assert md.coSimulation.canGetAndSetFMUstate and md.coSimulation.canSerializeFMUstate
+
+
+def test_parameters_carry_start_values_of_the_parameter_set(work):
+    from fmpy import read_model_description
+
+    for sub, path in (("default", ROOT / "models" / "fonbw_default.json"),
+                      ("alt", work / "alt.json")):
+        p = json.loads(Path(path).read_text())["params"]
+        md = read_model_description(str(work / sub / "FonbwHysteresis.fmu"))
+        start = {v.name: v.start for v in md.modelVariables if v.causality == "parameter"}
+        expected = {f"ku{i}": k for i, k in enumerate(p["ku"], 1)}
+        expected.update({k: p[k] for k in ("kh", "rho", "sigma", "n", "lam1", "lam2")})
+        for k, v in expected.items():
+            assert float(start[k]) == v, (sub, k)  # bit for bit
+        assert start["memory"] == p["memory"]
+        assert float(start["dt"]) == DT
+        units = {v.name: v.unit for v in md.modelVariables}
+        assert (units["ku1"], units["ku2"], units["kh"], units["rho"], units["dt"]) == \
+            ("um/V", "um/V2", "um", "1/V", "s")
+
+
+def test_fmu_uses_its_bundled_fonbw(work, fmpy_run):
+    # Even when fonbw is importable in the host (e.g. an editable install), the
+    # FMU's resources folder comes first on sys.path, so every fonbw module the
+    # FMUs loaded must come from an extracted FMU; a source file missing from
+    # the bundle would raise there instead of being picked up elsewhere.
+    _, rep = fmpy_run
+    files = rep["fonbw_files"]
+    assert "fonbw" in files and "fonbw.hysteresis" in files and "fonbw.plant" in files
+    unzip = (work / "unzip").resolve()
+    for mod, f in files.items():
+        assert f is not None and Path(f).resolve().is_relative_to(unzip), (mod, f)
+
+
+def test_hysteresis_fmu_equals_library(fmpy_run, ref):
+    arr, _ = fmpy_run
+    y = arr["hyst"]
+    assert y.shape == (N + 1,)
+    assert y[0] == 0.0  # at rest before the first step
+    assert _rel(y[1:], ref["y_def"]) <= REL_TOL
+    assert np.ptp(ref["y_def"]) > 5.0  # a real loop, not a flat line (um)
+
+
+def test_communication_step_multiple_of_dt(fmpy_run, ref):
+    arr, _ = fmpy_run
+    y = arr["hyst_zoh10"]  # h = 10 dt: 10 internal steps per doStep, input held
+    assert _rel(y[1:], ref["y_zoh10"][9::10]) <= REL_TOL
+
+
+def test_compensator_fmu_equals_library(fmpy_run, ref):
+    arr, rep = fmpy_run
+    assert "u_comp" in ref, "fonbw.compensate is not available"
+    assert "comp_error" not in rep, rep.get("comp_error")
+    u = arr["comp"]
+    assert u[0] == 0.0
+    assert _rel(u[1:], ref["u_comp"]) <= REL_TOL
+
+
+def test_plant_fmu_equals_python_control(fmpy_run):
+    import control
+
+    arr, _ = fmpy_run
+    d = json.loads((ROOT / "models" / "plant_default.json").read_text())
+    sysd = control.c2d(control.ss(d["A"], d["B"], d["C"], d["D"]), DT, method="zoh")
+    t, _, _, h = _signals()
+    ref = control.forced_response(sysd, T=t, U=h).outputs
+    assert _rel(arr["plant"], ref) <= REL_TOL
+
+
+def test_instances_with_different_parameters_stay_independent(fmpy_run, ref):
+    arr, _ = fmpy_run
+    ys = arr["indep"]
+    # A: default FMU; B: same FMU, parameters set through fmi2SetReal;
+    # C: another FMU file (same model identifier) built from another parameter set
+    # (getReal right after doStep k: the library's y[k])
+    for y, r in zip(ys, (ref["y_def"][:N_SHORT], ref["y_set"], ref["y_alt"])):
+        assert _rel(y, r) <= REL_TOL
+    assert _rel(ys[1], ys[0]) > 1e-3 and _rel(ys[2], ys[0]) > 1e-3
+
+
+@pytest.mark.parametrize("case", ["hyst_fast", "hyst_exact", "comp", "plant"])
+def test_state_rollback_replays_bit_for_bit(fmpy_run, case):
+    arr, rep = fmpy_run
+    assert "error" not in rep["state"][case], rep["state"][case]
+    ya, yb, yc, yfresh = arr[f"state_{case}"]
+    assert np.array_equal(ya, yb), "fmi2SetFMUstate did not restore the state"
+    assert np.array_equal(ya, yc), "fmi2DeSerializeFMUstate into a new instance differs"
+    # the restored memory matters: a fresh instance on the same inputs differs
+    assert not np.allclose(ya, yfresh, rtol=1e-6, atol=0)
+
+
+@pytest.mark.parametrize("i", range(len(BAD_PARAMS)), ids=[b[0] for b in BAD_PARAMS])
+def test_bad_parameters_refused_with_log(fmpy_run, i):
+    _, rep = fmpy_run
+    e = rep["bad_params"][i]
+    name = e["name"]
+    # pythonfmu cannot return fmi2Error from fmi2ExitInitializationMode without
+    # destroying the instance, so the refusal is an fmi2Error log line there ...
+    assert e["exit_init_status"] == 0
+    errors = [m for _, st, m in e["init_logs"] if st == 3]
+    assert errors and any(name in m for m in errors), e["init_logs"]
+    # ... and every doStep is refused with fmi2Discard and a log line
+    assert e["step_status"] == 2
+    assert any(st == 2 and "refused" in m and name in m for _, st, m in e["step_logs"]), e["step_logs"]
+
+
+def test_bad_communication_step_refused_with_log(fmpy_run):
+    _, rep = fmpy_run
+    for b in rep["bad_steps"]:
+        assert b["status"] == 2, b
+        assert any(st == 2 and "not a whole multiple" in m for _, st, m in b["logs"]), b
+    # the instance is unharmed: a valid step afterwards gives a fresh instance's number
+    assert rep["after_bad_status"] == 0
+    assert rep["after_bad_y"] == rep["fresh_3dt_y"]
+
+
+def test_fmus_run_in_libcosim(cosim_run, ref):
+    import control
+
+    out = cosim_run
+    ns = N_SHORT
+    # driven by the override manipulator: the input set before step k is used in step k
+    assert _rel(out["hyst"], ref["y_def"][:ns]) <= REL_TOL
+    assert "u_comp" in ref, "fonbw.compensate is not available"
+    assert _rel(out["comp"], ref["u_comp"][:ns]) <= REL_TOL
+    # connections carry the value after step k-1 into step k (0 before the first)
+    assert _rel(out["hyst2"], ref["y_chain"]) <= REL_TOL
+    d = json.loads((ROOT / "models" / "plant_default.json").read_text())
+    sysd = control.c2d(control.ss(d["A"], d["B"], d["C"], d["D"]), DT, method="zoh")
+    h_in = np.concatenate([[0.0], out["hyst2"][:-1]])
+    y = control.forced_response(sysd, T=np.arange(ns + 1) * DT, U=np.append(h_in, 0.0)).outputs
+    assert _rel(out["plant"], y[1:]) <= REL_TOL
