@@ -70,7 +70,7 @@ ENGINES = ("fast", "exact", "short", "oustaloup")
 
 #: Defaults of the fast engine: exact lags and number of geometric modes.
 FAST_K = 32
-FAST_M = 40
+FAST_M = 48
 #: Default window of the short-memory engine.
 SHORT_L = 1000
 #: Horizon over which :func:`tail_error` sums |w_j − ŵ_j| by default (lags).
@@ -295,10 +295,6 @@ class FracOp:
     def nz(self) -> int:
         return len(self.r) if self.kind == KIND_GL else len(self.B)
 
-    def new_state(self):
-        """Fresh (at rest) state arrays: ring buffer, mode/filter state, [pos, count]."""
-        return np.zeros(2 * max(self.window, 1)), np.zeros(self.nz), np.zeros(2, dtype=np.int64)
-
     def grown(self, window: int) -> "FracOp":
         """The same exact-engine operator with a longer window."""
         w = gl_weights(self.lam, window + 1)[1:] * self.dt ** (-self.lam)
@@ -356,70 +352,160 @@ def make_op(lam: float, dt: float, memory: str = "fast", *, n_steps: int | None 
 
 
 # ---------------------------------------------------------------------------
-# Compiled kernels. State of an operator: ``buf`` (2W ring with a mirrored
-# copy so the window is always contiguous), ``z`` (modes or filter state),
-# ``ist = [pos, count]``.
+# Compiled kernels.
+#
+# An operator is packed into a flat float64 parameter block and a flat state
+# block so that a whole model travels to numba as two arrays (cheap dispatch
+# per FMU step) and batch, population and per-step code all run the same
+# function.
+#
+# parameter block: [kind, a, W, M, m, w(W), c(M), r(M), A(m*m), B(m), C(m)]
+# state block:     [pos, count, buf(2*max(W,1)), z(nz)]   nz = M (GL) or m (Oustaloup)
+
+def pack(op: FracOp) -> np.ndarray:
+    """Flat parameter block of an operator (see the layout above)."""
+    m = len(op.B) if op.kind == KIND_OUSTALOUP else 0
+    M = len(op.r)
+    head = np.array([op.kind, op.a, op.window, M, m], dtype=float)
+    return np.concatenate([head, op.w, op.c, op.r, op.A.ravel() if m else [], op.B if m else [],
+                           op.C if m else []])
+
+
+def state_size(op: FracOp) -> int:
+    return 2 + 2 * max(op.window, 1) + op.nz
+
 
 @nb.njit(cache=True)
-def op_history(kind, w, c, C, buf, z, ist):
-    """History part h_k of (*) from the state before step k."""
-    h = 0.0
+def _sizes(P, o):
+    W = int(P[o + 2])
+    M = int(P[o + 3])
+    m = int(P[o + 4])
+    psize = 5 + W + 2 * M + m * m + 2 * m
+    ssize = 2 + 2 * max(W, 1) + (M if P[o] == KIND_GL else m)
+    return W, M, m, psize, ssize
+
+
+@nb.njit(cache=True, inline="always")
+def _dot_at(a, b, off, n):
+    """Σ_{j<n} a_j b_{off+j} (see :func:`_dot`; no slice is built: in the
+    hot path building a slice costs more than a short window)."""
+    h0 = 0.0
+    h1 = 0.0
+    h2 = 0.0
+    h3 = 0.0
+    j = 0
+    while j + 3 < n:
+        h0 += a[j] * b[off + j]
+        h1 += a[j + 1] * b[off + j + 1]
+        h2 += a[j + 2] * b[off + j + 2]
+        h3 += a[j + 3] * b[off + j + 3]
+        j += 4
+    while j < n:
+        h0 += a[j] * b[off + j]
+        j += 1
+    return (h0 + h1) + (h2 + h3)
+
+
+@nb.njit(cache=True, inline="always")
+def _dot(a, b, n):
+    """Σ_{j<n} a_j b_j with four accumulators (no fastmath: results must not
+    depend on where the compiler inlines this; four chains still break the
+    add latency)."""
+    h0 = 0.0
+    h1 = 0.0
+    h2 = 0.0
+    h3 = 0.0
+    j = 0
+    while j + 3 < n:
+        h0 += a[j] * b[j]
+        h1 += a[j + 1] * b[j + 1]
+        h2 += a[j + 2] * b[j + 2]
+        h3 += a[j + 3] * b[j + 3]
+        j += 4
+    while j < n:
+        h0 += a[j] * b[j]
+        j += 1
+    return (h0 + h1) + (h2 + h3)
+
+
+@nb.njit(cache=True, inline="always")
+def op_views(P, o, S, q):
+    """Views of one operator's blocks, built once per run (slicing per step
+    costs more than the arithmetic of a short window).
+
+    Returns ``(kind, a, W, w, c, r, A, B, C, ctr, buf, z)``; ``ctr = [pos,
+    count]``. The ring holds the newest sample at ``pos`` and lag j at
+    ``pos + j − 1`` with a mirrored copy behind, so the window is the
+    contiguous slice ``buf[pos:pos+W]``.
+    """
+    W, M, m, _, _ = _sizes(P, o)
+    Wb = max(W, 1)
+    zo = q + 2 + 2 * Wb
+    w = P[o + 5:o + 5 + W]
+    c = P[o + 5 + W:o + 5 + W + M]
+    r = P[o + 5 + W + M:o + 5 + W + 2 * M]
+    Ao = o + 5 + W + 2 * M
+    A = P[Ao:Ao + m * m].reshape((m, m))
+    B = P[Ao + m * m:Ao + m * m + m]
+    C = P[Ao + m * m + m:Ao + m * m + 2 * m]
+    nz = M if P[o] == KIND_GL else m
+    return (int(P[o]), P[o + 1], W, w, c, r, A, B, C, S[q:q + 2], S[q + 2:q + 2 + 2 * Wb], S[zo:zo + nz])
+
+
+@nb.njit(cache=True, inline="always")
+def op_history(v):
+    """History part h_k of (*) from the state before step k (views ``v``)."""
+    kind, a, W, w, c, r, A, B, C, ctr, buf, z = v
     if kind == KIND_GL:
-        W = w.shape[0]
-        pos = ist[0]
-        cnt = ist[1]
+        pos = int(ctr[0])
+        cnt = int(ctr[1])
         n = W if cnt > W else cnt
-        base = pos + W - 1
-        for j in range(n):
-            h += w[j] * buf[base - j]
-        for i in range(c.shape[0]):
-            h += c[i] * z[i]
-    else:
-        for i in range(C.shape[0]):
-            h += C[i] * z[i]
-    return h
+        h = _dot_at(w, buf, pos, n)
+        if c.shape[0] > 0:
+            h += _dot(c, z, c.shape[0])
+        return h
+    return _dot(C, z, C.shape[0])
 
 
-@nb.njit(cache=True)
-def op_push(kind, w, r, A, B, buf, z, ist, x):
-    """Advance the operator's state with the sample x_k."""
+@nb.njit(cache=True, inline="always")
+def _modes(r, z, old):
+    for i in range(r.shape[0]):
+        z[i] = r[i] * (z[i] + old)
+
+
+@nb.njit(cache=True, inline="always")
+def op_push(v, x):
+    """Advance the operator's state with the sample x_k (views ``v``)."""
+    kind, a, W, w, c, r, A, B, C, ctr, buf, z = v
     if kind == KIND_GL:
-        W = w.shape[0]
-        pos = ist[0]
+        pos = int(ctr[0]) - 1
+        if pos < 0:
+            pos = W - 1
         if r.shape[0] > 0:
-            old = buf[pos]  # the sample leaving the exact window
-            for i in range(r.shape[0]):
-                z[i] = r[i] * (z[i] + old)
+            # buf[pos] still holds lag W, the sample leaving the exact window
+            _modes(r, z, buf[pos])
         buf[pos] = x
         buf[pos + W] = x
-        pos += 1
-        if pos == W:
-            pos = 0
-        ist[0] = pos
-        ist[1] += 1
+        ctr[0] = pos
     else:
         m = B.shape[0]
         tmp = np.empty(m)
         for i in range(m):
-            s = B[i] * x
-            for j in range(m):
-                s += A[i, j] * z[j]
-            tmp[i] = s
-        for i in range(m):
-            z[i] = tmp[i]
-        ist[1] += 1
+            tmp[i] = B[i] * x + _dot(A[i], z, m)
+        z[:] = tmp
+    ctr[1] += 1.0
 
 
 @nb.njit(cache=True)
-def _apply_op(kind, a, w, c, r, A, B, C, x):
+def _apply_op(P, x):
     out = np.empty(x.shape[0])
-    W = max(w.shape[0], 1)
-    buf = np.zeros(2 * W)
-    z = np.zeros(r.shape[0] if kind == KIND_GL else B.shape[0])
-    ist = np.zeros(2, dtype=np.int64)
+    _, _, _, _, ss = _sizes(P, 0)
+    S = np.zeros(ss)
+    v = op_views(P, 0, S, 0)
+    a = P[1]
     for k in range(x.shape[0]):
-        out[k] = a * x[k] + op_history(kind, w, c, C, buf, z, ist)
-        op_push(kind, w, r, A, B, buf, z, ist, x[k])
+        out[k] = a * x[k] + op_history(v)
+        op_push(v, x[k])
     return out
 
 
@@ -428,4 +514,4 @@ def apply_op(op: FracOp, x) -> np.ndarray:
     x = np.ascontiguousarray(x, dtype=float)
     if op.growable and len(x) > op.window:
         op = op.grown(len(x))
-    return _apply_op(op.kind, op.a, op.w, op.c, op.r, op.A, op.B, op.C, x)
+    return _apply_op(pack(op), x)
