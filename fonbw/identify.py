@@ -1,0 +1,497 @@
+"""Model identification: minimize the RMS error of eq. (18) with jDE.
+
+``identify(records, kind)`` fits a hysteresis model (FONBW, asymmetric NBW,
+CBW or the model of Zhu et al., eq. (20)) to measured records by minimizing
+
+    J(Θ) = sqrt( (1/M) Σ_i (H_i − H_i^model)^2 )                          (18)
+
+over all M samples of all records (each record simulated from rest on its own,
+the squared errors pooled), with the self-adaptive differential evolution of
+:mod:`fonbw.de` (the paper's Sec. IV-B, Fig. 7). A whole DE generation is
+simulated in one call of :func:`fonbw.hysteresis.simulate_population`, which is
+compiled and parallel over candidates; ``workers`` sets its thread count.
+
+Linear parameters are solved, not searched (variable projection)
+----------------------------------------------------------------
+Every model here is *linear* in some of its parameters once the others are
+fixed. FONBW/NBW: H = Σ ku_i u^i + k_h ħ(ρ, σ, n, λ1, λ2) (eqs. 9-10), and ħ
+does not depend on ku_i or k_h. So DE searches only the nonlinear parameters;
+for each candidate ħ is simulated once (k_h = 1, ku = 0) and (ku_1..ku_N, k_h)
+follow from linear least squares on all records pooled. This is the exact
+minimum of eq. (18) over the linear parameters (Golub & Pereyra's variable
+projection), so the search dimension drops from 9 to 5 for FONBW and the
+minimized value is still eq. (18). CBW: H = ka u + kb D h (ka, k_h = kb D
+linear). Zhu (eq. 20): x = x0 + G·x̃ where x̃ is the output with k0 = 1,
+A = 1, x0 = 0; G scales the state h (h = G w), which maps back to
+A = G, k1 = G k1', δ = G δ', β = β'/|G|^(n−1), γ = γ' G/|G|^n.
+
+Search variables (reparametrization)
+------------------------------------
+The paper's Table 1 FONBW values are extreme (ρ = 6.5e-7, σ = 1.3e5,
+k_h = −3.3e4): the data do not fix ρ, σ and k_h separately there. With
+z = ħ/ρ eq. (11) reads
+
+    D^λ2 z = D^λ1 u − σρ^n |D^λ1 u| |z|^(n−1) z + (σ − 1)ρ^n D^λ1 u |z|^n ,
+    H = g(u) + (k_h ρ) z ,
+
+so what the output fixes for small ħ is k_h ρ (solved linearly) and σρ^n,
+while ρ alone only sets where ħ would saturate, a nearly flat direction of J
+when σ ≫ 1. FONBW/NBW/CBW therefore search (default ``reparametrize=True``)
+
+=============  ===========================  ==================================
+name           meaning                      default range (U = max|u| [V])
+=============  ===========================  ==================================
+``rho``        ρ                            log, [1e-7, 1e4]/U
+``sigma_rho``  σ^(1/n) ρ                    log, [1e-3, 1e4]/U
+``n``          n                            linear, [1, 4]
+``lam1/lam2``  λ1, λ2 (FONBW only)          linear, [0.05, 1]
+=============  ===========================  ==================================
+
+and σ = (sigma_rho/ρ)^n. The map is a bijection, linear in log coordinates:
+when ħ saturates, ρ and σ stay identifiable; when σ ≫ 1 the flat direction is
+along the ``rho`` axis alone, which DE copes with far better than with the
+diagonal ridge it makes in (log ρ, log σ). The wide ρ range allows for the
+factor ω^(λ1−λ2) by which the fractional orders rescale ρ.
+``reparametrize=False`` searches ``rho`` and ``sigma`` (log, [1e-2, 1e8])
+directly. CBW (eqs. 1-2, redundant, Sec. II-B) is searched in its normalized
+form and mapped back with A = 1, β + γ = 1 (so h0 = 1): β = σ, γ = 1 − σ,
+D = 1/ρ, and the paper's ka = αk = ku1, kb = (1 − α)k = k_h ρ. The Zhu model
+is searched with k0 = 1 (its force balance has the same overall-scale
+redundancy): ``wn`` = sqrt(k0/m0) [rad/s] log [2π, 2π·5e3], ``zeta`` =
+c0/(2 sqrt(k0 m0)) log [0.05, 20], ``k1_rel`` = k1/(τA) linear [−2, 2],
+``tau`` [s] log [1e-6, 1], ``beta_hat`` = β' U^n and ``gamma_hat`` = γ' U^n
+linear [−50, 50], ``delta_rel`` = δ/A [1/s] linear [−20, 20], ``n``.
+Override any range with ``bounds={"rho": (lo, hi), ...}``.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
+
+import numpy as np
+
+from fonbw.de import jde_minimize
+
+__all__ = ["KINDS", "IdentifyResult", "SearchSpace", "search_space", "identify",
+           "rms_cost"]
+
+KINDS = ("fonbw", "nbw", "cbw", "zhu")
+
+
+@dataclass
+class IdentifyResult:
+    """Outcome of :func:`identify`.
+
+    Attributes
+    ----------
+    model : object
+        The identified model (``fonbw.hysteresis.model_from_vector``).
+    kind : str
+        Model kind.
+    params : dict
+        Natural model parameters by name (order of
+        ``fonbw.hysteresis.param_names``).
+    rms : float
+        Eq. (18) of ``model`` over all records [µm], recomputed by simulating
+        the returned parameters.
+    nfev : int
+        Candidate evaluations (each one simulates every record once).
+    wall_time : float
+        Wall-clock time of the optimization [s].
+    history : ndarray
+        Best RMS [µm] after the initial population and each DE generation.
+    success, message
+        From the optimizer (:class:`fonbw.de.DEResult`).
+    search : dict
+        Search variables: ``names``, ``bounds``, ``log_scale`` and ``x``
+        (best point).
+    """
+
+    model: object
+    kind: str
+    params: dict
+    rms: float
+    nfev: int
+    wall_time: float
+    history: np.ndarray = field(repr=False)
+    success: bool = True
+    message: str = ""
+    search: dict = field(default_factory=dict, repr=False)
+
+
+@dataclass
+class SearchSpace:
+    """Nonlinear search variables of one model kind and the linear part.
+
+    Attributes
+    ----------
+    names, bounds, log_scale : list
+        Search variables handed to :func:`fonbw.de.jde_minimize`.
+    basis_params : callable
+        ``basis_params(X) -> dict`` of natural parameter arrays (P,) that make
+        the simulator return the *basis signal* s (ħ, h or x̃) of each
+        candidate row of X.
+    fixed_columns : callable
+        ``fixed_columns(u) -> (len(u), q)`` array F of the regressors that do
+        not depend on the candidate (u^i/U^i, or a constant).
+    final_params : callable
+        ``final_params(x, c, G) -> dict`` of natural parameters from one search
+        vector x, the coefficients c of F and the gain G of s.
+    """
+
+    kind: str
+    names: list
+    bounds: list
+    log_scale: list
+    basis_params: Callable = field(repr=False)
+    fixed_columns: Callable = field(repr=False)
+    final_params: Callable = field(repr=False)
+
+
+# --------------------------------------------------------------------------
+# Input checks
+# --------------------------------------------------------------------------
+
+def _as_records(records):
+    """List of checked (u, y, dt) tuples from a record or a list of records."""
+    if records is None:
+        raise ValueError("records: need at least one record with u and y")
+    if hasattr(records, "u") and hasattr(records, "y"):
+        records = [records]
+    records = list(records)
+    if not records:
+        raise ValueError("records: need at least one record with u and y")
+    out = []
+    for i, r in enumerate(records):
+        name = getattr(r, "path", None) or f"record {i}"
+        for attr in ("u", "y", "dt"):
+            if getattr(r, attr, None) is None:
+                raise ValueError(f"{name}: record has no {attr!r}")
+        u = np.ascontiguousarray(r.u, dtype=float).reshape(-1)
+        y = np.ascontiguousarray(r.y, dtype=float).reshape(-1)
+        dt = float(r.dt)
+        if u.shape != y.shape:
+            raise ValueError(f"{name}: u has {u.size} samples but y has {y.size}")
+        if u.size < 8:
+            raise ValueError(f"{name}: only {u.size} samples, need at least 8")
+        if not (np.all(np.isfinite(u)) and np.all(np.isfinite(y))):
+            raise ValueError(f"{name}: u and y must be finite")
+        if not (dt > 0.0 and np.isfinite(dt)):
+            raise ValueError(f"{name}: sampling period dt must be > 0, got {dt}")
+        out.append((u, y, dt))
+    U = max(float(np.max(np.abs(u))) for u, _, _ in out)
+    if U == 0.0:
+        raise ValueError("records: the input u is identically zero; nothing to identify")
+    if max(float(np.ptp(y)) for _, y, _ in out) == 0.0:
+        raise ValueError("records: the output y is constant; nothing to identify")
+    return out
+
+
+# --------------------------------------------------------------------------
+# Search spaces
+# --------------------------------------------------------------------------
+
+def search_space(kind: str, records, *, N: int = 3, bounds: Mapping | None = None,
+                 reparametrize: bool = True) -> SearchSpace:
+    """Search variables, default bounds and the maps to natural parameters.
+
+    Parameters
+    ----------
+    kind : {"fonbw", "nbw", "cbw", "zhu"}
+    records : record or list of records
+        Their max|u| scales the default bounds (module docstring).
+    N : int
+        Order of g(u), eq. (10) (FONBW and NBW; CBW has N = 1).
+    bounds : mapping, optional
+        ``{search_variable_name: (lo, hi)}`` overriding defaults.
+    reparametrize : bool
+        FONBW/NBW/CBW: search σ^(1/n)ρ (default) or σ.
+
+    Returns
+    -------
+    SearchSpace
+    """
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
+    if isinstance(N, bool) or int(N) != N or N < 1:
+        raise ValueError(f"N must be a positive integer, got {N!r}")
+    recs = _as_records(records)
+    U = max(float(np.max(np.abs(u))) for u, _, _ in recs)
+
+    if kind in ("fonbw", "nbw", "cbw"):
+        Np = int(N) if kind != "cbw" else 1
+        names = ["rho", "sigma_rho" if reparametrize else "sigma", "n"]
+        bnds = [(1e-7 / U, 1e4 / U),
+                (1e-3 / U, 1e4 / U) if reparametrize else (1e-2, 1e8),
+                (1.0, 4.0)]
+        logs = [True, True, False]
+        if kind == "fonbw":
+            names += ["lam1", "lam2"]
+            bnds += [(0.05, 1.0), (0.05, 1.0)]
+            logs += [False, False]
+
+        def rho_sigma_n(X):
+            rho, n = X[:, 0], X[:, 2]
+            sigma = (X[:, 1] / rho) ** n if reparametrize else X[:, 1]
+            return rho, sigma, n
+
+        def fixed_columns(u):
+            # Scaled powers keep the least-squares problem well conditioned.
+            return np.column_stack([(u / U) ** (i + 1) for i in range(Np)])
+
+        if kind == "cbw":
+            def basis_params(X):
+                rho, sigma, n = rho_sigma_n(X)
+                # ka = 0 and kb D = 1 make the output h itself (h0 = 1).
+                return {"ka": np.zeros_like(rho), "kb": rho, "D": 1.0 / rho,
+                        "A": np.ones_like(rho), "beta": sigma, "gamma": 1.0 - sigma,
+                        "n": n}
+
+            def final_params(x, c, G):
+                rho, sigma, n = (float(v[0]) for v in rho_sigma_n(x[None, :]))
+                return {"ka": float(c[0]) / U, "kb": G * rho, "D": 1.0 / rho, "A": 1.0,
+                        "beta": sigma, "gamma": 1.0 - sigma, "n": n}
+        else:
+            def basis_params(X):
+                rho, sigma, n = rho_sigma_n(X)
+                p = {f"ku{i + 1}": np.zeros_like(rho) for i in range(Np)}
+                p.update(kh=np.ones_like(rho), rho=rho, sigma=sigma, n=n)
+                if kind == "fonbw":
+                    p.update(lam1=X[:, 3], lam2=X[:, 4])
+                return p
+
+            def final_params(x, c, G):
+                p = {k: float(v[0]) for k, v in basis_params(x[None, :]).items()}
+                for i in range(Np):
+                    p[f"ku{i + 1}"] = float(c[i]) / U ** (i + 1)
+                p["kh"] = G
+                return p
+    else:  # Zhu et al., eq. (20); k0 = 1, A = 1 in the basis simulation
+        names = ["wn", "zeta", "k1_rel", "tau", "beta_hat", "gamma_hat", "delta_rel",
+                 "n"]
+        bnds = [(2 * np.pi, 2 * np.pi * 5e3), (0.05, 20.0), (-2.0, 2.0), (1e-6, 1.0),
+                (-50.0, 50.0), (-50.0, 50.0), (-20.0, 20.0), (1.0, 4.0)]
+        logs = [True, True, False, True, False, False, False, False]
+
+        def basis_params(X):
+            wn, zeta, k1r, tau, bh, gh, dr, n = X.T
+            one = np.ones_like(wn)
+            return {"m0": 1.0 / wn ** 2, "c0": 2.0 * zeta / wn, "k0": one,
+                    "k1": k1r * tau, "x0": np.zeros_like(wn), "tau": tau, "A": one,
+                    "beta": bh / U ** n, "gamma": gh / U ** n, "delta": dr, "n": n}
+
+        def fixed_columns(u):
+            return np.ones((u.size, 1))
+
+        def final_params(x, c, G):
+            p = {k: float(v[0]) for k, v in basis_params(x[None, :]).items()}
+            n = p["n"]
+            # h = G w rescales the BW state: see the module docstring.
+            p.update(x0=float(c[0]), A=G, k1=G * p["k1"], delta=G * p["delta"],
+                     beta=p["beta"] / abs(G) ** (n - 1.0),
+                     gamma=p["gamma"] * G / abs(G) ** n)
+            return p
+
+    if bounds is not None:
+        for key, b in dict(bounds).items():
+            if key not in names:
+                raise ValueError(f"bounds: unknown search variable {key!r} for kind "
+                                 f"{kind!r}; valid names are {names}")
+            try:
+                lo, hi = (float(v) for v in b)
+            except (TypeError, ValueError):
+                raise ValueError(f"bounds[{key!r}] = {b!r}: need a pair (lo, hi)") from None
+            j = names.index(key)
+            if not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
+                raise ValueError(f"bounds[{key!r}] = {b!r}: need finite lo <= hi")
+            if logs[j] and (lo <= 0.0 or hi <= 0.0):
+                raise ValueError(f"bounds[{key!r}] = {b!r}: {key} is searched on a log "
+                                 "scale and must be > 0")
+            bnds[j] = (lo, hi)
+    return SearchSpace(kind=kind, names=names, bounds=bnds, log_scale=logs,
+                       basis_params=basis_params, fixed_columns=fixed_columns,
+                       final_params=final_params)
+
+
+# --------------------------------------------------------------------------
+# Objective
+# --------------------------------------------------------------------------
+
+def rms_cost(kind, theta, records, *, memory="fast", N=3):
+    """Eq. (18) of each row of ``theta`` over all records pooled [µm].
+
+    Each record is simulated from rest separately; divergent candidates
+    (NaN rows from the simulator) cost +inf. This is the plain objective, with
+    every parameter given (no linear solve).
+
+    Parameters
+    ----------
+    kind : str
+    theta : ndarray, shape (P, d)
+        Natural parameters in the order of ``fonbw.hysteresis.param_names``.
+    records : record or list of records
+
+    Returns
+    -------
+    ndarray, shape (P,)
+    """
+    from fonbw import hysteresis as hyst
+
+    recs = _as_records(records)
+    theta = np.ascontiguousarray(np.atleast_2d(theta), dtype=float)
+    sse = np.zeros(theta.shape[0])
+    M = 0
+    with np.errstate(over="ignore", invalid="ignore"):
+        for u, y, dt in recs:
+            Y = hyst.simulate_population(kind, theta, u, dt, memory=memory, N=N)
+            sse += np.sum((Y - y) ** 2, axis=1)
+            M += y.size
+        J = np.sqrt(sse / M)
+    return np.where(np.isfinite(J), J, np.inf)
+
+
+class _Projected:
+    """Eq. (18) minimized over the linear parameters, for a population.
+
+    With F the fixed regressors (thin QR: F = QR) and s the candidate's basis
+    signal, all records stacked: r_y = y − QQᵀy, r_s = s − QQᵀs,
+    G = r_s·r_y / r_s·r_s, residual r_y − G r_s, c = R⁻¹Qᵀ(y − G s).
+    """
+
+    def __init__(self, space, recs, pnames, kind, memory, N):
+        self.space, self.recs, self.pnames = space, recs, pnames
+        self.kind, self.memory, self.N = kind, memory, N
+        F = np.vstack([space.fixed_columns(u) for u, _, _ in recs])
+        self.y = np.concatenate([y for _, y, _ in recs])
+        self.Q, self.R = np.linalg.qr(F)
+        self.ry = self.y - self.Q @ (self.Q.T @ self.y)
+        self.M = self.y.size
+
+    def basis(self, X):
+        from fonbw import hysteresis as hyst
+
+        p = self.space.basis_params(np.atleast_2d(X))
+        theta = np.column_stack([np.asarray(p[k], dtype=float) for k in self.pnames])
+        return np.hstack([hyst.simulate_population(self.kind, theta, u, dt,
+                                                   memory=self.memory, N=self.N)
+                          for u, _, dt in self.recs])
+
+    def solve(self, X):
+        """(rms (P,), G (P,), c (P, q)) for search vectors X (P, d)."""
+        S = self.basis(X)
+        P = S.shape[0]
+        ok = np.all(np.isfinite(S), axis=1)
+        rms = np.full(P, np.inf)
+        G = np.zeros(P)
+        c = np.zeros((P, self.Q.shape[1]))
+        if not ok.any():
+            return rms, G, c
+        S = S[ok]
+        with np.errstate(over="ignore", invalid="ignore"):
+            QtS = S @ self.Q                      # (p, q)
+            rS = S - QtS @ self.Q.T
+            ss = np.einsum("ij,ij->i", rS, rS)
+            g = np.where(ss > 0.0, (rS @ self.ry) / np.where(ss > 0.0, ss, 1.0), 0.0)
+            res = self.ry[None, :] - g[:, None] * rS
+            J = np.sqrt(np.einsum("ij,ij->i", res, res) / self.M)
+            cc = np.linalg.solve(self.R, (self.Q.T @ self.y)[:, None] - QtS.T * g).T
+        rms[ok] = np.where(np.isfinite(J), J, np.inf)
+        G[ok] = g
+        c[ok] = cc
+        return rms, G, c
+
+    def __call__(self, X):
+        return self.solve(X)[0]
+
+
+# --------------------------------------------------------------------------
+# Driver
+# --------------------------------------------------------------------------
+
+def identify(records, kind: str = "fonbw", *, seed=None, max_evals: int = 5000,
+             workers: int | None = None, progress: bool = False,
+             memory: str = "fast", N: int = 3, bounds: Mapping | None = None,
+             reparametrize: bool = True, popsize: int | None = None,
+             polish: bool | str = True, polish_maxfev: int | None = None,
+             callback=None) -> IdentifyResult:
+    """Identify a hysteresis model by minimizing eq. (18) with jDE.
+
+    Parameters
+    ----------
+    records : Record or list of Record
+        Objects with ``u`` [V], ``y`` [µm] arrays and ``dt`` [s] (e.g. from
+        :func:`fonbw.io.read_record`). Every record starts from rest.
+    kind : {"fonbw", "nbw", "cbw", "zhu"}
+        FONBW (eqs. 9-11), asymmetric NBW (eqs. 8-10, i.e. FONBW with
+        λ1 = λ2 = 1), CBW (eqs. 1-2), Zhu et al. (eq. 20).
+    seed : int, optional
+        Seed of the optimizer; same seed and data give the same model.
+    max_evals : int
+        Candidate evaluations in all, polish included; each simulates every
+        record once. Only nonlinear parameters are searched (module
+        docstring), so a few thousand usually suffice.
+    workers : int, optional
+        Threads of the compiled population simulator (numba); default: numba's
+        current setting. Restored afterwards.
+    progress : bool
+        Show a progress bar (evaluations).
+    memory : str
+        GL memory engine used during identification (see fonbw.fractional).
+    N : int
+        Order of g(u) (eq. 10) for "fonbw" and "nbw".
+    bounds : mapping, optional
+        Overrides of search-variable bounds by name (module docstring).
+    reparametrize : bool
+        Search σ^(1/n)ρ instead of σ (module docstring).
+    popsize, polish, polish_maxfev, callback
+        Passed to :func:`fonbw.de.jde_minimize`; ``polish_maxfev`` defaults to
+        a fifth of ``max_evals`` (local refinement pays off here).
+
+    Returns
+    -------
+    IdentifyResult
+    """
+    import numba
+    from fonbw import hysteresis as hyst
+
+    recs = _as_records(records)
+    space = search_space(kind, records, N=N, bounds=bounds, reparametrize=reparametrize)
+    Nsim = int(N) if kind in ("fonbw", "nbw") else 1
+    pnames = list(hyst.param_names(kind, Nsim))
+    if int(max_evals) != max_evals or max_evals < 1:
+        raise ValueError(f"max_evals must be a positive integer, got {max_evals!r}")
+    if polish_maxfev is None and polish:
+        polish_maxfev = int(max_evals) // 5
+    if workers is not None and (isinstance(workers, bool) or int(workers) != workers
+                                or not 1 <= workers <= numba.config.NUMBA_NUM_THREADS):
+        raise ValueError(f"workers must be an integer in [1, "
+                         f"{numba.config.NUMBA_NUM_THREADS}], got {workers!r}")
+    proj = _Projected(space, recs, pnames, kind, memory, Nsim)
+
+    old_threads = numba.get_num_threads()
+    if workers is not None:
+        numba.set_num_threads(int(workers))
+    t0 = time.perf_counter()
+    try:
+        res = jde_minimize(proj, space.bounds, log_scale=space.log_scale,
+                           popsize=popsize, max_evals=int(max_evals), seed=seed,
+                           polish=polish, polish_maxfev=polish_maxfev,
+                           progress=progress, callback=callback)
+    finally:
+        numba.set_num_threads(old_threads)
+    wall = time.perf_counter() - t0
+
+    if not np.isfinite(res.fun):
+        raise RuntimeError(f"identify({kind!r}): every candidate diverged "
+                           f"({res.nfev} evaluations); check the data and bounds")
+    _, G, c = proj.solve(res.x[None, :])
+    params = space.final_params(res.x, c[0], float(G[0]))
+    theta = np.array([params[k] for k in pnames], dtype=float)
+    model = hyst.model_from_vector(kind, theta, N=Nsim, memory=memory)
+    rms = float(rms_cost(kind, theta[None, :], records, memory=memory, N=Nsim)[0])
+    return IdentifyResult(model=model, kind=kind, params=params, rms=rms,
+                          nfev=res.nfev, wall_time=wall, history=res.history,
+                          success=res.success, message=res.message,
+                          search={"names": space.names, "bounds": space.bounds,
+                                  "log_scale": space.log_scale, "x": res.x})
