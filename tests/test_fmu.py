@@ -41,6 +41,7 @@ SET_PARAMS = {"lam1": 0.9, "lam2": 0.8, "kh": -2.5e4}
 # Parameter changes of the second build (--params), loaded next to the default
 ALT_PARAMS = {"lam2": 0.7, "sigma": 5.0e4, "n": 1.5}
 # Each refused parameter set: name -> value (the name must appear in the log)
+ENGINES = ["fast", "exact", "short", "oustaloup"]
 BAD_PARAMS = [("lam1", 1.5), ("n", 0.5), ("dt", -1e-4), ("kh", float("nan")),
               ("rho", -1.0), ("memory", "bogus")]
 
@@ -82,6 +83,8 @@ out = {
     "y_def": base.simulate(u, dt),
     "y_set": fonbw.FONBW(**{**p, **cfg["SET_PARAMS"]}).simulate(u[:cfg["N_SHORT"]], dt),
     "y_alt": alt.simulate(u[:cfg["N_SHORT"]], dt),
+    **{"eng_" + e: fonbw.FONBW(**{**p, "memory": e}).simulate(u[:cfg["N_SHORT"]], dt)
+       for e in cfg["ENGINES"]},
     # communication step 10 dt: the FMU holds u over 10 internal steps
     "y_zoh10": base.simulate(np.repeat(u[:cfg["N_SHORT"]:10], 10), dt),
 }
@@ -169,6 +172,17 @@ for k in range(NS):
         ys[i, k] = s.getReal([vr["y"]])[0]
 arr["indep"] = ys
 for s, vr in inst:
+    s.terminate(); s.freeInstance()
+
+# 2b. the memory parameter selects the library's engine
+for eng in cfg["ENGINES"]:
+    s, vr = new(*H, "eng_" + eng, {"memory": eng})
+    out = np.zeros(NS)
+    for k in range(NS):
+        s.setReal([vr["u"]], [sig["u"][k]])
+        s.doStep(k * DT, DT)
+        out[k] = s.getReal([vr["y"]])[0]
+    arr["eng_" + eng] = out
     s.terminate(); s.freeInstance()
 
 # 3. state: save -> run -> restore -> run; serialize -> new instance -> run
@@ -293,7 +307,7 @@ def work(tmp_path_factory):
     np.savez(w / "signals.npz", t=t, u=u, y_ref=y_ref, h=h)
     (w / "config.json").write_text(json.dumps(dict(
         N=N, N_SHORT=N_SHORT, DT=DT, SET_PARAMS=SET_PARAMS, ALT_PARAMS=ALT_PARAMS,
-        BAD_PARAMS=BAD_PARAMS)))
+        BAD_PARAMS=BAD_PARAMS, ENGINES=ENGINES)))
     _run(["-c", REFERENCE, ROOT, w], cwd=w)
     _run([ROOT / "build_fmu.py", "-o", w / "default"], cwd=w)
     _run([ROOT / "build_fmu.py", "--only", "hysteresis", "--params", w / "alt.json",
@@ -393,6 +407,14 @@ def test_hysteresis_fmu_equals_library(fmpy_run, ref):
     assert y[0] == 0.0  # at rest before the first step
     assert _rel(y[1:], ref["y_def"]) <= REL_TOL
     assert np.ptp(ref["y_def"]) > 5.0  # a real loop, not a flat line (um)
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+def test_memory_parameter_selects_engine(fmpy_run, ref, engine):
+    arr, _ = fmpy_run
+    assert _rel(arr["eng_" + engine], ref["eng_" + engine]) <= REL_TOL
+    if engine in ("short", "oustaloup"):  # they differ from GL by % (docs), so the
+        assert _rel(arr["eng_" + engine], ref["eng_exact"]) > 1e-4  # parameter took effect
 
 
 def test_communication_step_multiple_of_dt(fmpy_run, ref):
