@@ -59,8 +59,10 @@ D = 1/ρ, and the paper's ka = αk = ku1, kb = (1 − α)k = k_h ρ. The Zhu mod
 is searched with k0 = 1 (its force balance has the same overall-scale
 redundancy): ``wn`` = sqrt(k0/m0) [rad/s] log [2π, 2π·5e3], ``zeta`` =
 c0/(2 sqrt(k0 m0)) log [0.05, 20], ``k1_rel`` = k1/(τA) linear [−2, 2],
-``tau`` [s] log [1e-6, 1], ``beta_hat`` = β' U^n and ``gamma_hat`` = γ' U^n
-linear [−50, 50], ``delta_rel`` = δ/A [1/s] linear [−20, 20], ``n``.
+``tau`` [s] log [1e-6, 1], ``beta_hat`` = β' U^n log [1e-3, 1e3],
+``gamma_rel`` = γ/β linear [−1, 1] (β > 0, |γ| ≤ β: the bounded-h class of the
+BW equation; outside it most candidates diverge), ``delta_rel`` = δ/A [1/s]
+linear [−20, 20], ``n``.
 Override any range with ``bounds={"rho": (lo, hi), ...}``.
 """
 from __future__ import annotations
@@ -268,18 +270,19 @@ def search_space(kind: str, records, *, N: int = 3, bounds: Mapping | None = Non
                 p["kh"] = G
                 return p
     else:  # Zhu et al., eq. (20); k0 = 1, A = 1 in the basis simulation
-        names = ["wn", "zeta", "k1_rel", "tau", "beta_hat", "gamma_hat", "delta_rel",
+        names = ["wn", "zeta", "k1_rel", "tau", "beta_hat", "gamma_rel", "delta_rel",
                  "n"]
         bnds = [(2 * np.pi, 2 * np.pi * 5e3), (0.05, 20.0), (-2.0, 2.0), (1e-6, 1.0),
-                (-50.0, 50.0), (-50.0, 50.0), (-20.0, 20.0), (1.0, 4.0)]
-        logs = [True, True, False, True, False, False, False, False]
+                (1e-3, 1e3), (-1.0, 1.0), (-20.0, 20.0), (1.0, 4.0)]
+        logs = [True, True, False, True, True, False, False, False]
 
         def basis_params(X):
-            wn, zeta, k1r, tau, bh, gh, dr, n = X.T
+            wn, zeta, k1r, tau, bh, gr, dr, n = X.T
             one = np.ones_like(wn)
+            beta = bh / U ** n
             return {"m0": 1.0 / wn ** 2, "c0": 2.0 * zeta / wn, "k0": one,
                     "k1": k1r * tau, "x0": np.zeros_like(wn), "tau": tau, "A": one,
-                    "beta": bh / U ** n, "gamma": gh / U ** n, "delta": dr, "n": n}
+                    "beta": beta, "gamma": gr * beta, "delta": dr, "n": n}
 
         def fixed_columns(u):
             return np.ones((u.size, 1))
