@@ -87,15 +87,27 @@ def _bw_residual(x, b, c1, c2, n):
     return x - b + c1 * p * x + c2 * p * ax
 
 
+#: Newton stops when its own error estimate is below this fraction of |ħ|
+#: (half an ulp): the result is the root to round-off.
+NEWTON_RTOL = 2.0 ** -53
+
+
 @nb.njit(cache=True)
 def solve_bw(b, c1, c2, n, x0):
     """Root of F(x) = x − b + c1|x|^(n−1)x + c2|x|^n by safeguarded Newton.
 
     For c1 ≥ |c2| (σ ≥ 1/2, or β ≥ |γ| for CBW) F is increasing and the root
     lies between 0 and b; otherwise the bracket is widened until F changes
-    sign. Newton starts from ``x0`` (the previous state) and falls back to
-    bisection whenever a step leaves the bracket. Returns NaN when no bracket
-    exists (a divergent parameter set).
+    sign. Newton starts from ``x0`` (a predictor of the root) and falls back
+    to bisection whenever a step leaves the bracket. Returns NaN when no
+    bracket exists (a divergent parameter set).
+
+    Stopping rule: after a Newton step of length s from x the error of the new
+    iterate is ≈ |F''|/(2F') s² with F'' = n(n−1)(c1 ± c2)|x|^(n−2) (no new
+    power needed); the iterate is returned as soon as that is below
+    ``NEWTON_RTOL``·|x|, on the same side of 0 (F is smooth there; for n = 1
+    it is linear on each side, so one such step is exact). With a good
+    predictor one evaluation of |x|^(n−1) per step is the rule.
     """
     if not (math.isfinite(b) and math.isfinite(c1) and math.isfinite(c2)):
         return math.nan
@@ -121,9 +133,11 @@ def solve_bw(b, c1, c2, n, x0):
     x = x0
     if not (lo < x < hi):
         x = 0.5 * (lo + hi)
+    k2 = n * (n - 1.0)
     for _ in range(200):
         ax = abs(x)
         p = _powm1(ax, n)
+        g = c1 + c2 if x >= 0.0 else c1 - c2
         f = x - b + c1 * p * x + c2 * p * ax
         if f == 0.0:
             return x
@@ -131,15 +145,15 @@ def solve_bw(b, c1, c2, n, x0):
             lo = x
         else:
             hi = x
-        sgn = 1.0 if x >= 0.0 else -1.0
-        d = 1.0 + n * p * (c1 + c2 * sgn)
+        d = 1.0 + n * p * g
         xn = x - f / d if d > 0.0 else 0.5 * (lo + hi)
-        if not (lo <= xn <= hi):
+        if lo <= xn <= hi:
+            s = xn - x
+            if ax > 0.0 and (xn > 0.0) == (x > 0.0) and k2 * abs(g) * p * s * s <= 2.0 * NEWTON_RTOL * d * ax * abs(xn):
+                return xn
+        else:
             xn = 0.5 * (lo + hi)
-        step = abs(xn - x)
-        # Newton converges quadratically: once a step is below 1e-9 relative
-        # the new iterate is correct to round-off.
-        if step <= 1e-9 * abs(xn) or step <= 1e-300 or hi - lo <= 4.4e-16 * max(abs(lo), abs(hi)):
+        if hi - lo <= 4.4e-16 * max(abs(lo), abs(hi)) or abs(xn - x) <= 1e-300:
             return xn
         x = xn
     return x
@@ -147,12 +161,18 @@ def solve_bw(b, c1, c2, n, x0):
 
 # Packed layouts (one parameter block P and one state block S per model, so a
 # model crosses into compiled code as two arrays):
-#   FONBW  P = [kh, rho, sigma, n, N, ku(N), op1, op2]   S = [u0, started, ħ_{k-1}, ħ_k, op1 state, op2 state]
+#   FONBW  P = [kh, rho, sigma, n, N, ku(N), op1, op2]
+#          S = [u0, started, ħ_{k-1}, ħ_k, ħ_{k-2}, op1 state, op2 state]
 #   CBW    P = [ka, kb, D, A, beta, gamma, n]            S = [u_{k-1}, started, h_{k-1}, h_k]
 #   Zhu    P = [dt, k1, tau, A, beta, gamma, delta, n, x0, Φ(2x2), Γ(2)]
 #          S = [u_{k-1}, started, h_{k-1}, h_k, x−x0, v, k]
 # S[3] always holds the hysteretic state of the last evaluated (possibly
-# uncommitted) step.
+# uncommitted) step. The FONBW views are the two blocks plus the operators'
+# offset descriptors (plain numbers: no array views cross the calls).
+
+#: Start of the first operator's state block in a FONBW state block.
+FONBW_S0 = 5
+
 
 @nb.njit(cache=True, inline="always")
 def fonbw_views(P, S):
@@ -160,8 +180,7 @@ def fonbw_views(P, S):
     o1 = 5 + N
     s1 = fr._sizes(P, o1)
     o2 = o1 + s1[3]
-    return (S, P[5:5 + N], P[0], P[1], P[2], P[3],
-            fr.op_views(P, o1, S, 4), fr.op_views(P, o2, S, 4 + s1[4]))
+    return (P, S, N, fr.op_desc(P, o1, FONBW_S0), fr.op_desc(P, o2, FONBW_S0 + s1[4]))
 
 
 @nb.njit(cache=True, inline="always")
@@ -171,26 +190,31 @@ def fonbw_core(u, commit, V):
     Returns H(u_k) [µm]. With ``commit`` False nothing is stored (the
     compensator's trial evaluations); ħ_k is left in S[3] either way.
     """
-    S, ku, kh, rho, sigma, n, v1, v2 = V
+    P, S, N, d1, d2 = V
+    rho = P[1]
+    sigma = P[2]
     uref = u if S[1] == 0.0 else S[0]
     xk = u - uref
-    D1 = v1[1] * xk + fr.op_history(v1)
-    h2 = fr.op_history(v2)
-    ia2 = 1.0 / v2[1]
-    hb = solve_bw((rho * D1 - h2) * ia2, rho * sigma * abs(D1) * ia2, rho * (1.0 - sigma) * D1 * ia2, n, S[2])
+    D1 = d1[13] * xk + fr.op_history(P, S, d1)
+    h2 = fr.op_history(P, S, d2)
+    ia2 = 1.0 / d2[13]
+    # predictor: linear extrapolation of ħ (one Newton step then suffices)
+    hb = solve_bw((rho * D1 - h2) * ia2, rho * sigma * abs(D1) * ia2, rho * (1.0 - sigma) * D1 * ia2, P[3],
+                  2.0 * S[2] - S[4])
     S[3] = hb
     if commit:
         if S[1] == 0.0:
             S[0] = u
             S[1] = 1.0
-        fr.op_push(v1, xk)
-        fr.op_push(v2, hb)
+        fr.op_push(P, S, d1, xk)
+        fr.op_push(P, S, d2, hb)
+        S[4] = S[2]
         S[2] = hb
     # g(u) = Σ ku_i u^i (eq. 10) by Horner
     g = 0.0
-    for i in range(ku.shape[0] - 1, -1, -1):
-        g = (g + ku[i]) * u
-    return g + kh * hb
+    for i in range(N - 1, -1, -1):
+        g = (g + P[5 + i]) * u
+    return g + P[0] * hb
 
 
 @nb.njit(cache=True)
@@ -260,26 +284,70 @@ def zhu_step(u, commit, P, S):
     return P[8] + xr
 
 
+#: Model codes of the batch runner (dispatchers cannot be cached as arguments).
+CODE_FONBW = 0
+CODE_CBW = 1
+CODE_ZHU = 2
+
+
 @nb.njit(cache=True)
-def run_kernel(views, core, u, P, ssize, out, hout):
-    """Batch run of a model kernel from rest; NaN from the first non-finite output."""
+def step_code(code, u, commit, P, S):
+    """One step of the model with code ``code`` on its packed blocks.
+
+    The cacheable way for other compiled code (compensator, closed loops) to
+    call any model: numba cannot cache a function that takes a dispatcher as
+    an argument, so pass ``model._code`` instead of ``model._kernels``.
+    """
+    if code == CODE_FONBW:
+        return fonbw_step(u, commit, P, S)
+    if code == CODE_CBW:
+        return cbw_step(u, commit, P, S)
+    return zhu_step(u, commit, P, S)
+
+
+@nb.njit(cache=True)
+def _finish(out, hout, k):
+    out[k:] = math.nan
+    hout[k:] = math.nan
+
+
+@nb.njit(cache=True)
+def run_kernel(code, u, P, ssize, out, hout):
+    """Batch run of a model from rest; NaN from the first non-finite output.
+
+    ``hout`` receives the hysteretic state (ħ or h) after each step.
+    """
     S = np.zeros(ssize)
-    V = views(P, S)
-    for k in range(u.shape[0]):
-        out[k] = core(u[k], True, V)
-        hout[k] = S[2]
-        if not math.isfinite(out[k]):
-            out[k:] = math.nan
-            hout[k:] = math.nan
-            break
+    if code == CODE_FONBW:
+        V = fonbw_views(P, S)
+        for k in range(u.shape[0]):
+            out[k] = fonbw_core(u[k], True, V)
+            hout[k] = S[2]
+            if not math.isfinite(out[k]):
+                _finish(out, hout, k)
+                return
+    elif code == CODE_CBW:
+        for k in range(u.shape[0]):
+            out[k] = cbw_step(u[k], True, P, S)
+            hout[k] = S[2]
+            if not math.isfinite(out[k]):
+                _finish(out, hout, k)
+                return
+    else:
+        for k in range(u.shape[0]):
+            out[k] = zhu_step(u[k], True, P, S)
+            hout[k] = S[2]
+            if not math.isfinite(out[k]):
+                _finish(out, hout, k)
+                return
 
 
 @nb.njit(cache=True, parallel=True)
-def run_population(views, core, u, Pm, ssizes, out):
+def run_population(code, u, Pm, ssizes, out):
     """Rows of Pm (padded packed parameter blocks) in parallel."""
     for p in nb.prange(Pm.shape[0]):
         hd = np.empty(u.shape[0])
-        run_kernel(views, core, u, Pm[p], ssizes[p], out[p], hd)
+        run_kernel(code, u, Pm[p], ssizes[p], out[p], hd)
 
 
 # ---------------------------------------------------------------------------
@@ -433,14 +501,20 @@ class FONBW(_Model):
 
     @property
     def params(self) -> dict:
-        return {"ku": self.ku, "kh": self.kh, "rho": self.rho, "sigma": self.sigma, "n": self.n,
-                "lam1": self.lam1, "lam2": self.lam2, "memory": self.memory}
+        p = {"ku": self.ku, "kh": self.kh, "rho": self.rho, "sigma": self.sigma, "n": self.n,
+             "lam1": self.lam1, "lam2": self.lam2, "memory": self.memory}
+        # engine sizes only when they differ from the defaults, so saved files stay short
+        for name, default in (("K", fr.FAST_K), ("M", fr.FAST_M), ("L", fr.SHORT_L)):
+            if getattr(self, name) != default:
+                p[name] = getattr(self, name)
+        return p
 
     def _ops(self, dt, n_steps=None):
         kw = dict(K=self.K, M=self.M, L=self.L, n_steps=n_steps)
         return fr.make_op(self.lam1, dt, self.memory, **kw), fr.make_op(self.lam2, dt, self.memory, **kw)
 
     _step = staticmethod(fonbw_step)
+    _code = CODE_FONBW
     _kernels = (fonbw_views, fonbw_core)
 
     def _pack(self, dt, n_steps=None, ops=None):
@@ -448,7 +522,7 @@ class FONBW(_Model):
         o1, o2 = ops if ops is not None else self._ops(dt, n_steps)
         P = np.concatenate([[self.kh, self.rho, self.sigma, self.n, len(self.ku)], self.ku,
                             fr.pack(o1), fr.pack(o2)])
-        return P, 4 + fr.state_size(o1) + fr.state_size(o2)
+        return P, FONBW_S0 + fr.state_size(o1) + fr.state_size(o2)
 
     def simulate(self, u, dt, return_state=False):
         """Output H [µm] for the input u [V] sampled at step dt [s], from rest.
@@ -556,6 +630,7 @@ class CBW(_Model):
         return NBW(ku=self.ka, kh=self.kb * self.D * h0, rho=self.A / (self.D * h0), sigma=self.beta / s, n=self.n)
 
     _step = staticmethod(cbw_step)
+    _code = CODE_CBW
     _kernels = (plain_views, cbw_core)
 
     def _pack(self, dt, n_steps=None):
@@ -618,6 +693,7 @@ class Zhu2016(_Model):
         return {k: getattr(self, k) for k in self.names}
 
     _step = staticmethod(zhu_step)
+    _code = CODE_ZHU
     _kernels = (plain_views, zhu_core)
 
     def _pack(self, dt, n_steps=None):
@@ -640,7 +716,7 @@ def _simulate(model, u, dt, return_state):
     out = np.empty(len(u))
     hout = np.empty(len(u))
     if len(u):
-        run_kernel(*model._kernels, u, P, ss, out, hout)
+        run_kernel(model._code, u, P, ss, out, hout)
     return (out, hout) if return_state else out
 
 
@@ -721,7 +797,7 @@ class _FONBWStepper(Stepper):
 
     def _offsets(self):
         sz = [fr.state_size(op) for op in self.ops]
-        return [4, 4 + sz[0]], sz
+        return [FONBW_S0, FONBW_S0 + sz[0]], sz
 
     def _count(self, i):
         q = self._offsets()[0][i]
@@ -736,17 +812,17 @@ class _FONBWStepper(Stepper):
                 W = op.window
                 new = op.grown(2 * W)
                 pos = int(blk[0])
-                vals = blk[2 + pos:2 + pos + W]  # newest first (lag 1 … W)
+                vals = blk[3 + pos:3 + pos + W]  # newest first (lag 1 … W)
                 nbuf = np.zeros(2 * new.window)
                 nbuf[:W] = vals
                 nbuf[new.window:new.window + W] = vals
-                blk = np.concatenate([[0, blk[1]], nbuf, blk[2 + 2 * W:]])
+                blk = np.concatenate([[0, blk[1], blk[2]], nbuf, blk[3 + 2 * W:]])
                 op = new
             new_ops.append(op)
             new_blocks.append(blk)
         self.ops = tuple(new_ops)
         self.P, _ = self.model._pack(self.dt, ops=self.ops)
-        self.S = np.concatenate([self.S[:4], *new_blocks])
+        self.S = np.concatenate([self.S[:FONBW_S0], *new_blocks])
 
     def set_state(self, state):
         s = np.asarray(state, dtype=float)
@@ -877,6 +953,6 @@ def simulate_population(kind: str, theta, u, dt, memory: str = "fast", N: int = 
         Pm[i, :len(pk)] = pk
     ss = np.array([pk[1] for pk in packs], dtype=np.int64)
     sub = np.empty((len(packs), len(u)))
-    run_population(*models[0][1]._kernels, u, Pm, ss, sub)
+    run_population(models[0][1]._code, u, Pm, ss, sub)
     out[[p for p, _ in models]] = sub
     return out
