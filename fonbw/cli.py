@@ -1,0 +1,271 @@
+"""The ``fonbw`` command line.
+
+Every command validates its input at the boundary. On bad input it prints one
+line ``fonbw <command>: error: <file>: <field/row>: <reason>`` on stderr and
+exits with code 2, with no traceback, and without writing or half-writing
+any output file (outputs are written atomically). Ctrl-C exits with code 130
+and leaves previous outputs untouched.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+
+__all__ = ["main", "CLIError"]
+
+
+class CLIError(Exception):
+    """A user error reported as one line with exit code 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, exit 2 (argparse prints usage + message by default)
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
+# ---------------------------------------------------------------------------
+# helpers shared by the commands
+
+def _model(path):
+    from .hysteresis import load_model
+
+    return load_model(path)
+
+
+def _records(paths, need=("u", "y")):
+    from .io import read_record
+
+    return [read_record(p, need=need) for p in paths]
+
+
+def _out_path(path):
+    d = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(d):
+        raise CLIError(f"{path}: output directory {d} does not exist")
+    return path
+
+
+def _fmt(v):
+    return f"{v:.6g}" if isinstance(v, float) else str(v)
+
+
+# ---------------------------------------------------------------------------
+# commands
+
+def cmd_simulate(ns):
+    from .io import write_csv
+
+    m = _model(ns.model)
+    if ns.memory and hasattr(m, "memory"):
+        from .hysteresis import model_from_dict
+
+        d = m.to_dict()
+        d["params"]["memory"] = ns.memory
+        m = model_from_dict(d, source=ns.model)
+    (rec,) = _records([ns.input], need=("u",))
+    y = m.simulate(rec.u, rec.dt)
+    write_csv(_out_path(ns.output), {"t": rec.t, "u": rec.u, "y": y})
+    print(f"wrote {ns.output}: {len(y)} samples at dt = {rec.dt:.6g} s, y in [{y.min():.4g}, {y.max():.4g}] µm")
+
+
+def validation_metrics(model, rec) -> dict:
+    """RMS error [µm], RMS as % of the measured range (Table 3), max error [µm]."""
+    import numpy as np
+
+    yhat = model.simulate(rec.u, rec.dt)
+    e = yhat - rec.y
+    rng = float(np.ptp(rec.y))
+    rms = float(np.sqrt(np.mean(e**2)))
+    return {"file": rec.path, "samples": int(len(e)), "rms": rms,
+            "rms_percent": 100.0 * rms / rng if rng > 0 else math.inf,
+            "max_abs": float(np.max(np.abs(e))), "range": rng}
+
+
+def cmd_validate(ns):
+    m = _model(ns.model)
+    recs = _records(ns.data)
+    res = [validation_metrics(m, r) for r in recs]
+    out = res[0] if len(res) == 1 else {"records": res, **{k: max(r[k] for r in res) for k in ("rms", "rms_percent", "max_abs")}}
+    if ns.json:
+        print(json.dumps({"model": ns.model, "kind": m.kind, **out}, indent=2))
+    else:
+        for r in res:
+            print(f"{r['file']}: RMS {r['rms']:.4g} µm = {r['rms_percent']:.3g} % of range {r['range']:.4g} µm, "
+                  f"max |error| {r['max_abs']:.4g} µm over {r['samples']} samples")
+
+
+def cmd_identify(ns):
+    from .identify import identify
+
+    recs = _records(ns.data)
+    if ns.seed is not None and ns.seed < 0:
+        raise CLIError(f"--seed must be ≥ 0, got {ns.seed}")
+    kw = dict(kind=ns.model, seed=ns.seed, progress=not ns.quiet)
+    if ns.max_evals is not None:
+        if ns.max_evals < 10:
+            raise CLIError(f"--max-evals must be at least 10, got {ns.max_evals}")
+        kw["max_evals"] = ns.max_evals
+    if ns.workers is not None:
+        if ns.workers < 1:
+            raise CLIError(f"--workers must be ≥ 1, got {ns.workers}")
+        kw["workers"] = ns.workers
+    if ns.memory:
+        kw["memory"] = ns.memory
+    res = identify(recs, **kw)
+    res.model.save(_out_path(ns.output))
+    msg = getattr(res, "message", "")
+    print(f"wrote {ns.output}: {res.model.kind} model, training RMS {res.rms:.4g} µm"
+          + (f" ({msg})" if msg else ""))
+
+
+def cmd_compensate(ns):
+    from .compensate import compensate
+    from .io import write_csv
+
+    m = _model(ns.model)
+    (rec,) = _records([ns.trajectory], need=("Hd",))
+    if not ns.umin < ns.umax:
+        raise CLIError(f"--umin ({ns.umin}) must be below --umax ({ns.umax})")
+    res = compensate(m, rec.hd, rec.dt, u_min=ns.umin, u_max=ns.umax)
+    u = getattr(res, "u", res)
+    write_csv(_out_path(ns.output), {"t": rec.t, "u": u, "Hd": rec.hd})
+    sat = getattr(res, "saturated", None)
+    nsat = int(sat.sum()) if sat is not None else 0
+    print(f"wrote {ns.output}: {len(u)} samples, u in [{min(u):.4g}, {max(u):.4g}] V"
+          + (f", {nsat} sample(s) saturated at the voltage limits" if nsat else ""))
+
+
+def cmd_figures(ns):
+    from .figures import make_figures
+
+    for p in make_figures(ns.output):
+        print(f"wrote {p}")
+
+
+def cmd_bench(ns):
+    from .bench import Bench
+
+    b = Bench(seed=ns.seed)
+    for p in b.write_experiments(ns.output, logger=True):
+        print(f"wrote {p}")
+
+
+def _delegate(module, func):
+    """A command implemented in another module (`<module>.<func>(ns)`)."""
+
+    def run(ns):
+        import importlib
+
+        return getattr(importlib.import_module(f".{module}", __package__), func)(ns)
+
+    return run
+
+
+# ---------------------------------------------------------------------------
+
+def build_parser() -> argparse.ArgumentParser:
+    from . import __version__
+    from .fractional import ENGINES
+
+    p = _Parser(prog="fonbw", description="Fractional-order normalized Bouc-Wen hysteresis of piezoelectric "
+                "actuators: simulate, identify, compensate, co-simulate FMUs, diagnose the sim-to-real gap.")
+    p.add_argument("--version", action="version", version=f"fonbw {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    s = sub.add_parser("simulate", help="simulate a saved model on an input CSV (t,u)")
+    s.add_argument("model", metavar="MODEL.json")
+    s.add_argument("input", metavar="INPUT.csv")
+    s.add_argument("-o", "--output", required=True, metavar="OUT.csv")
+    s.add_argument("--memory", choices=ENGINES, help="override the model's GL memory engine")
+    s.set_defaults(func=cmd_simulate)
+
+    s = sub.add_parser("identify", help="identify a model from measured records (t,u,y) by jDE")
+    s.add_argument("data", nargs="+", metavar="DATA.csv", help="one or more training records")
+    s.add_argument("--model", choices=("fonbw", "cbw", "nbw", "zhu"), default="fonbw")
+    s.add_argument("-o", "--output", required=True, metavar="MODEL.json")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--max-evals", type=int, dest="max_evals")
+    s.add_argument("--workers", type=int)
+    s.add_argument("--memory", choices=ENGINES)
+    s.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    s.set_defaults(func=cmd_identify)
+
+    s = sub.add_parser("validate", help="RMS / %% of range / max error of a model on records (t,u,y)")
+    s.add_argument("model", metavar="MODEL.json")
+    s.add_argument("data", nargs="+", metavar="DATA.csv")
+    s.add_argument("--json", action="store_true", help="print a JSON object (keys rms, rms_percent, max_abs)")
+    s.set_defaults(func=cmd_validate)
+
+    s = sub.add_parser("compensate", help="feedforward input u for a desired trajectory (t,Hd), eq. (16)")
+    s.add_argument("model", metavar="MODEL.json")
+    s.add_argument("trajectory", metavar="TRAJ.csv")
+    s.add_argument("-o", "--output", required=True, metavar="U.csv")
+    s.add_argument("--umin", type=float, default=0.0, help="lower voltage limit [V] (default 0)")
+    s.add_argument("--umax", type=float, default=120.0, help="upper voltage limit [V] (default 120)")
+    s.set_defaults(func=cmd_compensate)
+
+    s = sub.add_parser("cosim", help="closed-loop co-simulation of the FMUs (reference, fmpy, libcosim)")
+    try:
+        from .cosim import add_cosim_arguments
+        add_cosim_arguments(s)
+        s.set_defaults(func=_delegate("cosim", "cosim_command"))
+    except ImportError:
+        s.set_defaults(func=lambda ns: (_ for _ in ()).throw(CLIError("cosim is not available in this build")))
+
+    s = sub.add_parser("diagnose", help="localize and attribute the sim-to-real gap")
+    try:
+        from .gap import add_diagnose_arguments
+        add_diagnose_arguments(s)
+        s.set_defaults(func=_delegate("gap", "diagnose_command"))
+    except ImportError:
+        s.set_defaults(func=lambda ns: (_ for _ in ()).throw(CLIError("diagnose is not available in this build")))
+
+    s = sub.add_parser("figures", help="the paper's Figs. 1-4 as PNG files")
+    s.add_argument("-o", "--output", default="figures", metavar="DIR")
+    s.set_defaults(func=cmd_figures)
+
+    s = sub.add_parser("bench", help="write the virtual bench's experiments (eq. 19, sines, …) as CSV")
+    s.add_argument("-o", "--output", default="bench-data", metavar="DIR")
+    s.add_argument("--seed", type=int, default=0)
+    s.set_defaults(func=cmd_bench)
+
+    s = sub.add_parser("reproduce", help="the paper's Tables 1-4 and Figs. 8-11 on the virtual bench")
+    s.add_argument("-o", "--output", default="reproduce-out", metavar="DIR")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--quick", action="store_true", help="small budgets (a smoke run)")
+    s.set_defaults(func=_delegate("demo", "reproduce_command"))
+
+    s = sub.add_parser("demo", help="the whole workflow on the virtual bench, with an HTML report")
+    s.add_argument("-o", "--output", default="demo-out", metavar="DIR")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--quick", action="store_true", help="reduced budgets (about a minute)")
+    s.set_defaults(func=_delegate("demo", "demo_command"))
+    return p
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    ns = parser.parse_args(argv)
+    if not getattr(ns, "command", None):
+        parser.print_help()
+        return 2
+    prog = f"fonbw {ns.command}"
+    from .io import DataError
+
+    try:
+        ns.func(ns)
+    except (CLIError, DataError, ValueError, OSError) as exc:
+        msg = " ".join(str(exc).split()) or type(exc).__name__
+        print(f"{prog}: error: {msg}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted; no output was written", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,97 @@
+"""The command line as a user runs it: a fresh process, exit codes, one-line errors."""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import fonbw
+from fonbw.io import read_record, write_csv
+
+TABLE1 = dict(ku=[0.1811, -1.4037e-4, -7.7154e-8], kh=-3.2719e4, rho=6.4808e-7, sigma=1.3039e5,
+              n=2.0006, lam1=0.9557, lam2=0.6220)
+
+
+def run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "fonbw", *map(str, args)], capture_output=True, text=True,
+                          cwd=cwd, timeout=600)
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cli")
+    m = fonbw.FONBW(**TABLE1)
+    m.save(d / "model.json")
+    t = np.arange(3000) * 1e-4
+    u = 60 - 60 * np.cos(2 * np.pi * 5 * t)
+    write_csv(d / "input.csv", {"t": t, "u": u})
+    y = m.simulate(u, 1e-4)
+    write_csv(d / "meas.csv", {"t": t, "u": u, "y": y + 0.01})
+    return d, m, u, y
+
+
+def test_simulate_writes_the_library_output(files):
+    d, m, u, y = files
+    r = run("simulate", d / "model.json", d / "input.csv", "-o", d / "out.csv")
+    assert r.returncode == 0, r.stderr
+    out = read_record(d / "out.csv")
+    # the CLI takes dt from the file's time stamps (median step): same numbers as the library with that dt
+    assert np.array_equal(out.y, m.simulate(u, read_record(d / "input.csv", need=("u",)).dt))
+    assert np.max(np.abs(out.y - y)) < 1e-9 * np.max(np.abs(y))
+
+
+def test_validate_json_reports_the_offset(files):
+    d, m, u, y = files
+    r = run("validate", d / "model.json", d / "meas.csv", "--json")
+    assert r.returncode == 0, r.stderr
+    res = json.loads(r.stdout)
+    assert res["rms"] == pytest.approx(0.01, rel=1e-6)
+    assert res["max_abs"] == pytest.approx(0.01, rel=1e-6)
+    assert res["rms_percent"] == pytest.approx(100 * 0.01 / np.ptp(y + 0.01), rel=1e-6)
+
+
+@pytest.mark.parametrize("make_bad, expect", [
+    (lambda d: (d / "bad.csv").write_text("t,v\n0,1\n"), "missing column(s) 'u'"),
+    (lambda d: (d / "bad.csv").write_text("t,u\n" + "".join(f"{i*1e-3},{'nan' if i == 5 else 1}\n" for i in range(12))), "row 7: column 'u'"),
+    (lambda d: (d / "bad.csv").write_text("t,u\n" + "".join(f"{(i if i != 6 else 4.5)*1e-3},1\n" for i in range(12))), "row 8"),
+])
+def test_bad_input_one_line_exit_2_no_output(files, make_bad, expect):
+    d = files[0]
+    make_bad(d)
+    out = d / "never.csv"
+    r = run("simulate", d / "model.json", d / "bad.csv", "-o", out)
+    assert r.returncode == 2
+    assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+    assert "bad.csv" in r.stderr and expect in r.stderr
+    assert not out.exists()
+
+
+def test_bad_model_and_arguments(files, tmp_path):
+    d = files[0]
+    (tmp_path / "m.json").write_text(json.dumps({"kind": "fonbw", "params": {**TABLE1, "lam1": 1.5}}))
+    r = run("simulate", tmp_path / "m.json", d / "input.csv", "-o", tmp_path / "o.csv")
+    assert r.returncode == 2 and "m.json: field 'params': parameter lam1" in r.stderr
+    assert r.stderr.count("\n") == 1
+    r = run("simulate", d / "model.json")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1
+    r = run("frobnicate")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1
+    r = run("simulate", d / "model.json", d / "input.csv", "-o", tmp_path / "no" / "dir" / "o.csv")
+    assert r.returncode == 2 and "does not exist" in r.stderr
+
+
+def test_help_lists_every_command():
+    r = run("--help")
+    assert r.returncode == 0
+    for c in ("simulate", "identify", "validate", "compensate", "cosim", "diagnose", "demo", "figures"):
+        assert c in r.stdout
+
+
+def test_figures_are_real_pngs(tmp_path):
+    r = run("figures", "-o", tmp_path)
+    assert r.returncode == 0, r.stderr
+    pngs = sorted(tmp_path.glob("*.png"))
+    assert len(pngs) == 4
+    for p in pngs:
+        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 10_000
