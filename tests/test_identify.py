@@ -83,7 +83,7 @@ def test_history_is_rms_and_non_increasing(fonbw_fit):
     _, res = fonbw_fit
     h = res.history
     assert np.all(np.diff(h) <= 0)
-    assert h[-1] >= res.rms - 1e-12        # polish can only improve on DE's best
+    assert h[-1] >= res.rms * (1 - 1e-7)   # polish can only improve on DE's best
     assert h[0] > 2 * res.rms              # the initial population is far off
 
 
