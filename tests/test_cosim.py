@@ -1,0 +1,237 @@
+"""Closed-loop co-simulation (issue 6): three masters, one loop.
+
+* The reference master (library steppers, in this process) is checked against
+  independent references: the model's batch simulation of the actuator input
+  it applied, and python-control's closed loop (control.feedback +
+  forced_response) for a linear plant without hysteresis.
+* The fmpy master (FMUs through FMU2Slave, controller in the master) and the
+  libcosim master (FMUs + the FonbwPID FMU, libcosim's fixed-step algorithm)
+  run in fresh subprocesses, one per master (the FMUs' Python code must not
+  mix with this process's imports), over the four modes with and without the
+  plant's dynamics and creep; they must agree with the reference to 1e-9
+  relative on rms_error and sample by sample on the trace.
+* A faulty FMU (a communication step it refuses with fmi2Discard) stops the
+  loop with a message naming the FMU and keeps the trace up to that step.
+
+FMUs are built once for the module into a tmp dir.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import control as ct
+import numpy as np
+import pytest
+
+import fonbw
+from fonbw import cosim
+from fonbw.plant import mechanics
+
+DT = 1e-4
+T = 0.1                      # 1000 steps per run
+PLANTS = ("none", "dynamics+creep")
+REL = 1e-9
+CASES = [dict(scenario="sine5", mode=m, plant=p, T=T) for p in PLANTS for m in cosim.MODES]
+TRACE_KEYS = ("t", "r", "u", "y", "e")
+
+DRIVER = r'''
+import json, sys
+import numpy as np
+from fonbw.cosim import run_cosim
+master, fmu_dir, cases_file, out = sys.argv[1:5]
+cases = json.load(open(cases_file))
+arrays, report = {}, []
+for i, kw in enumerate(cases):
+    try:
+        r = run_cosim(master=master, fmu_dir=fmu_dir, **kw)
+    except Exception as e:
+        report.append({"exception": f"{type(e).__name__}: {e}"})
+        continue
+    report.append({k: r[k] for k in ("rms_error", "max_error", "rms_input", "steps", "error",
+                                       "wall_s", "setup_s")})
+    for k in ("t", "r", "u", "y", "e"):
+        arrays[f"{i}_{k}"] = r["trace"][k]
+np.savez(out + ".npz", **arrays)
+json.dump(report, open(out + ".json", "w"), indent=1)
+'''
+
+
+@pytest.fixture(scope="module")
+def fmu_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cosim_fmus")
+    for pl in PLANTS:
+        cosim.build_fmus(d, None if pl == "none" else pl)
+    return d
+
+
+def _drive(master, fmu_dir, cases, tag):
+    work = Path(fmu_dir)
+    cf = work / f"{tag}_cases.json"
+    cf.write_text(json.dumps(cases))
+    out = work / tag
+    r = subprocess.run([sys.executable, "-c", DRIVER, master, str(fmu_dir), str(cf), str(out)],
+                       capture_output=True, text=True, timeout=600, cwd=str(work))
+    if r.returncode != 0:
+        pytest.fail(f"{master} driver failed ({r.returncode}):\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}")
+    arr = dict(np.load(str(out) + ".npz"))
+    rep = json.loads(Path(str(out) + ".json").read_text())
+    return [({k: arr.get(f"{i}_{k}") for k in TRACE_KEYS}, rep[i]) for i in range(len(cases))]
+
+
+FAULT_CASES = [
+    # T not a whole multiple of dt: the final 0.5 dt step is refused by the FMUs
+    dict(scenario="sine5", mode="ff+fb", plant="dynamics+creep", T=0.05 + 0.5 * DT),
+]
+
+
+@pytest.fixture(scope="module")
+def fmpy_runs(fmu_dir):
+    return _drive("fmpy", fmu_dir, CASES + FAULT_CASES, "fmpy")
+
+
+@pytest.fixture(scope="module")
+def libcosim_runs(fmu_dir):
+    bad = [dict(scenario="sine5", mode="fb", plant="dynamics+creep", T=0.01,
+                fmu_overrides={"hyst": {"dt": 2 * DT}})]
+    return _drive("libcosim", fmu_dir, CASES + bad, "libcosim")
+
+
+@pytest.fixture(scope="module")
+def reference_runs():
+    return [cosim.run_cosim(master="reference", **kw) for kw in CASES]
+
+
+def _assert_same(ref, other, what):
+    tr_ref = ref["trace"]
+    tr, rep = other
+    assert "exception" not in rep, rep
+    assert rep["error"] is None, rep["error"]
+    assert rep["steps"] == ref["steps"]
+    for key in ("rms_error", "max_error", "rms_input"):
+        assert abs(rep[key] - ref[key]) <= REL * abs(ref[key]), (what, key, rep[key], ref[key])
+    for key in TRACE_KEYS:
+        a, b = np.asarray(tr[key]), tr_ref[key]
+        assert a.shape == b.shape, (what, key)
+        scale = max(float(np.max(np.abs(b))), 1e-300)
+        assert float(np.max(np.abs(a - b))) <= REL * scale, (what, key)
+
+
+@pytest.mark.parametrize("i", range(len(CASES)), ids=[f"{c['mode']}-{c['plant']}" for c in CASES])
+def test_fmpy_master_agrees_with_reference(reference_runs, fmpy_runs, i):
+    _assert_same(reference_runs[i], fmpy_runs[i], f"fmpy {CASES[i]}")
+
+
+@pytest.mark.parametrize("i", range(len(CASES)), ids=[f"{c['mode']}-{c['plant']}" for c in CASES])
+def test_libcosim_master_agrees_with_reference(reference_runs, libcosim_runs, i):
+    _assert_same(reference_runs[i], libcosim_runs[i], f"libcosim {CASES[i]}")
+
+
+@pytest.mark.parametrize("i", [i for i, c in enumerate(CASES) if c["plant"] == "none"],
+                         ids=[c["mode"] for c in CASES if c["plant"] == "none"])
+def test_actuator_in_the_loop_is_the_model(reference_runs, i):
+    # Without a plant the measured output is the hysteresis block's: the
+    # model's batch simulation of the voltage the loop applied, exactly.
+    tr = reference_runs[i]["trace"]
+    model = fonbw.load_model(cosim.DEFAULT_MODEL)
+    y = model.simulate(tr["u"], DT)
+    assert np.max(np.abs(y - tr["y"])) <= 1e-12 * np.max(np.abs(y))
+
+
+def test_feedforward_with_exact_model_tracks(reference_runs):
+    # The compensator inverts the same model the actuator runs, no plant: the
+    # chain reproduces H_d to the compensator's solver tolerance (the loop
+    # feeds it the reference one step ahead, so no latency either).
+    r = reference_runs[CASES.index(dict(scenario="sine5", mode="ff", plant="none", T=T))]
+    tr = r["trace"]
+    assert np.ptp(tr["u"]) > 1.0, "the compensator did not drive the actuator (V)"
+    assert r["rms_error"] <= 1e-3 * np.ptp(tr["r"]), r["rms_error"]
+
+
+def test_open_loop_input_is_scaled_reference(reference_runs):
+    tr = reference_runs[CASES.index(dict(scenario="sine5", mode="open", plant="none", T=T))]["trace"]
+    k_lin = cosim.linear_gain(fonbw.load_model(cosim.DEFAULT_MODEL), DT)
+    np.testing.assert_array_equal(tr["u"], tr["r"] / k_lin)
+
+
+def test_feedback_reduces_the_hysteresis_error(reference_runs):
+    rms = {(c["mode"], c["plant"]): r["rms_error"] for c, r in zip(CASES, reference_runs)}
+    for pl in PLANTS:
+        assert rms[("fb", pl)] < 0.5 * rms[("open", pl)], rms
+
+
+@pytest.mark.parametrize("scenario", ["step", "multi"])
+def test_linear_loop_matches_python_control(scenario):
+    # Known linear plant, no hysteresis, controller without limits: the
+    # co-simulated loop is z^-1 K(z) P(z) closed by unit feedback (the
+    # one-step alignment of the controller's inputs, module docstring).
+    P = ct.ss(0.15 * mechanics())
+    spec = cosim.controller_spec(0.5, 3000.0, 0.0, DT, None, None)
+    r = cosim.run_cosim(scenario, "fb", "reference", T=0.2, plant=P, hysteresis=False,
+                        models={"controller": spec})
+    tr = r["trace"]
+    assert r["error"] is None and r["config"]["blocks"] == ["ctrl", "plant"]
+    Pd = ct.c2d(ct.ss(P.A, P.B, P.C, P.D), DT)
+    K = cosim.LoopController(spec).pid.to_tf()
+    z1 = ct.tf([1.0], [1.0, 0.0], DT)
+    y = ct.forced_response(ct.feedback(z1 * K * Pd, 1), T=tr["t"], U=tr["r"]).outputs
+    assert np.max(np.abs(y - tr["y"])) <= 1e-9 * np.max(np.abs(y))
+    assert np.max(np.abs(tr["y"])) > 1.0
+
+
+def test_designed_controller_has_margins():
+    k = cosim.linear_gain(fonbw.load_model(cosim.DEFAULT_MODEL), DT)
+    for pl in ("none", "dynamics"):
+        d = cosim.design_controller(k, pl, DT)["design"]
+        assert d["gain_margin"] >= 2.0 and d["phase_margin_deg"] >= 45.0, (pl, d)
+
+
+def test_refused_step_stops_fmpy_loop_and_keeps_trace(fmpy_runs, reference_runs):
+    tr, rep = fmpy_runs[len(CASES)]
+    assert "exception" not in rep, rep
+    n = int(round(0.05 / DT))
+    assert rep["steps"] == n and tr["y"].shape == (n,)
+    msg = rep["error"]
+    assert msg and "fmi2Discard" in msg and "not a whole multiple" in msg and f"step {n}" in msg, msg
+    # the kept trace is the normal run's (first 500 steps of the 1000-step run)
+    full = reference_runs[CASES.index(dict(scenario="sine5", mode="ff+fb", plant="dynamics+creep", T=T))]
+    np.testing.assert_allclose(tr["y"], full["trace"]["y"][:n], rtol=0, atol=1e-9 * np.max(np.abs(tr["y"])))
+
+
+def test_refused_step_stops_reference_loop_the_same_way():
+    r = cosim.run_cosim("sine5", "fb", "reference", T=0.01 + 0.5 * DT)
+    assert r["steps"] == 100 and len(r["trace"]["y"]) == 100
+    assert "step 100" in r["error"] and "not a whole multiple" in r["error"]
+
+
+def test_refused_step_stops_libcosim_loop(libcosim_runs):
+    tr, rep = libcosim_runs[len(CASES)]
+    assert "exception" not in rep, rep
+    assert rep["steps"] == 0 and tr["y"].shape == (0,)
+    assert "hyst" in rep["error"] and "step 0" in rep["error"], rep["error"]
+
+
+def test_bad_arguments_are_refused():
+    with pytest.raises(ValueError, match="mode"):
+        cosim.run_cosim("sine5", "bogus")
+    with pytest.raises(ValueError, match="scenario"):
+        cosim.run_cosim("nope", "fb")
+    with pytest.raises(ValueError, match="master"):
+        cosim.run_cosim("sine5", "fb", "simulink")
+    with pytest.raises(ValueError, match="plant"):
+        cosim.run_cosim("sine5", "fb", plant="wobbly")
+
+
+def test_cli_writes_json_and_csv(tmp_path, capsys):
+    j, c = tmp_path / "r.json", tmp_path / "tr.csv"
+    rc = cosim.cosim_main(["--scenario", "sine5", "--mode", "fb", "--T", "0.02",
+                           "--json", str(j), "--csv", str(c)])
+    assert rc == 0
+    d = json.loads(j.read_text())
+    assert d["steps"] == 200 and d["rms_error"] > 0
+    rec = fonbw.read_record(c, need=("u", "y"))
+    assert len(rec.t) == 200
+    assert cosim.cosim_main(["--scenario", "sine5", "--mode", "fb", "--T", "-1"]) == 2
+    assert "fonbw cosim:" in capsys.readouterr().err
