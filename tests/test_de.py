@@ -255,3 +255,10 @@ def test_against_scipy_differential_evolution_same_budget(capsys):
     ros, ras = rows
     assert ros[1] <= max(10 * ros[3], 1e-10)
     assert ras[1] < 1e-8
+
+
+def test_progress_bar_counts_evaluations(capsys):
+    r = jde_minimize(sphere_pop, [(-1, 1)] * 2, popsize=10, max_evals=300, seed=0,
+                     progress=True)
+    err = capsys.readouterr().err
+    assert "jDE" in err and f"{r.nfev}/300" in err
