@@ -1,0 +1,75 @@
+"""`fonbw demo` end to end at reduced budgets, and its report in a real browser."""
+import os
+import re
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+SECTIONS = ["Virtual bench", "Table 1 — identification", "Table 2 — parameter counts", "Table 3 — validation",
+            "Table 4 — feedforward compensation", "FMUs", "Closed loop in fmpy", "Sim-to-real gap", "Run"]
+
+
+@pytest.fixture(scope="module")
+def demo_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo")
+    r = subprocess.run([sys.executable, "-m", "fonbw", "demo", "--quick", "-o", str(out)], capture_output=True,
+                       text=True, timeout=1500)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return out
+
+
+def _section(md, title):
+    i = md.index(f"## {title}\n")
+    j = md.find("\n## ", i + 1)
+    return md[i:j if j > 0 else None]
+
+
+def test_report_has_every_section_with_numbers(demo_dir):
+    md = (demo_dir / "report.md").read_text(encoding="utf-8")
+    for title in SECTIONS:
+        body = _section(md, title)
+        assert re.search(r"\d+\.\d+", body), f"section {title!r} has no numbers"
+    assert "Failed stages" not in md
+    # each table row of Table 3 carries five percentages
+    t3 = _section(md, "Table 3 — validation")
+    for model in ("FONBW", "CBW", "Zhu"):
+        row = next(line for line in t3.splitlines() if line.startswith(f"| {model}"))
+        assert len(re.findall(r"\d+\.\d+ %", row)) == 5
+    # the FMUs were really built and every image the report links exists as a PNG
+    assert len(list((demo_dir / "fmus").glob("*.fmu"))) >= 3
+    for rel in re.findall(r"!\[[^\]]*\]\(([^)]+)\)", md):
+        p = demo_dir / rel
+        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def _chromium():
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        p = shutil.which(name)
+        if p:
+            return p
+    return None
+
+
+CHROME_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                "--virtual-time-budget=5000"]
+
+
+@pytest.mark.skipif(_chromium() is None, reason="no Chromium on this machine (.ci/run installs Debian's)")
+def test_report_renders_in_headless_chromium(demo_dir, tmp_path):
+    html = demo_dir / "report.html"
+    n_img = html.read_text(encoding="utf-8").count("<img ")
+    assert n_img >= 7
+    r = subprocess.run([_chromium(), *CHROME_FLAGS, f"--user-data-dir={tmp_path / 'profile'}", "--dump-dom",
+                        html.as_uri()], capture_output=True, text=True, timeout=180)
+    m = re.search(r'data-images-ok="(\d+)/(\d+)"', r.stdout)
+    assert m, r.stderr[-1000:]
+    assert int(m.group(1)) == int(m.group(2)) == n_img
+    shot = tmp_path / "top.png"
+    subprocess.run([_chromium(), *CHROME_FLAGS, f"--user-data-dir={tmp_path / 'profile2'}", f"--screenshot={shot}",
+                    "--window-size=1200,900", html.as_uri()], capture_output=True, timeout=180)
+    assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and shot.stat().st_size > 20_000
+    if os.environ.get("FONBW_UPDATE_SCREENSHOT"):
+        shutil.copy(shot, os.path.join(os.path.dirname(__file__), "..", "docs", "report_top.png"))
