@@ -720,52 +720,75 @@ def _run_fmpy(w, cfg, n, rest, dt):
                                  _Wiring.IO[b][1])
             blocks[b] = blk
         setup = time.perf_counter() - t_setup
-        tr = _new_trace(w, len(w.t))
-        ins = {b: w.inputs(b) for b in w.blocks}
-        ext = w.ext
         order = w.blocks
+        pos = {b: j for j, b in enumerate(order)}
+        ext = {key: arr.tolist() for key, arr in w.ext.items()}  # Python floats: cheaper per sample
+        # per block: (is_fmu, block, [(sequence or None, source position)], ctypes input buffer)
+        plan = []
+        for b in order:
+            blk = blocks[b]
+            srcs = [(ext[s[1]], -1) if s[0] == "ext" else (None, pos[s[1]]) for _, s in w.inputs(b)]
+            plan.append((isinstance(blk, _FmpyBlock), blk, srcs,
+                         blk._ival if isinstance(blk, _FmpyBlock) else [0.0] * len(srcs)))
+        outs = [blocks[b].out for b in order]
+        rec = [[] for _ in order]
+        nb = len(order)
         error = None
+        k = -1
         t0 = time.perf_counter()
         for k in range(n + (1 if rest else 0)):
             h = dt if k < n else rest
             t = k * dt
-            vals = {b: [ext[s[1]][k] if s[0] == "ext" else blocks[s[1]].out for _, s in ins[b]]
-                    for b in order}
-            for b in order:
-                blk = blocks[b]
-                if isinstance(blk, _RefBlock):
-                    ok, m = _check_multiple(h, blk.dt)
-                    if not ok:
-                        error = (f"co-simulation stopped at t={t!r} s (step {k}): controller "
-                                 f"refused the communication step {h!r} s: not a whole multiple "
-                                 f"of its sample time {blk.dt!r} s")
-                        break
-                    v = vals[b]
-                    for _ in range(m):
-                        blk.pending = blk._step(*v)
-                else:
-                    blk.set(vals[b])
+            # Jacobi: every block's inputs from the outputs after the previous step
+            for is_fmu, blk, srcs, buf in plan:
+                i = 0
+                for seq, sp in srcs:
+                    buf[i] = seq[k] if seq is not None else outs[sp]
+                    i += 1
+                if is_fmu:
+                    blk._set(blk._c, blk._ivr, blk._n, buf)
+            for j in range(nb):
+                is_fmu, blk, srcs, buf = plan[j]
+                if is_fmu:
                     try:
-                        blk.step(t, h)
+                        blk._do(blk._c, t, h, 1)
                     except FMICallException as e:
+                        b = order[j]
                         msgs = "; ".join(m for r, _, m in logs if r == b) or "no log message"
                         label = {2: "fmi2Discard", 3: "fmi2Error", 4: "fmi2Fatal"}.get(e.status, str(e.status))
                         error = (f"co-simulation stopped at t={t!r} s (step {k}): FMU "
                                  f"{blk.identifier} (instance {b!r}) returned {label} from "
                                  f"fmi2DoStep: {msgs}")
                         break
+                else:
+                    ok, m = _check_multiple(h, blk.dt) if k >= n else (True, 1)
+                    if not ok:
+                        error = (f"co-simulation stopped at t={t!r} s (step {k}): controller "
+                                 f"refused the communication step {h!r} s: not a whole multiple "
+                                 f"of its sample time {blk.dt!r} s")
+                        break
+                    for _ in range(m):
+                        blk.pending = blk._step(*buf)
             if error:
                 break
-            for b in order:
-                blk = blocks[b]
-                blk.out = blk.pending if isinstance(blk, _RefBlock) else blk.get()
-                tr["out_" + b][k] = blk.out
+            for j in range(nb):
+                is_fmu, blk = plan[j][0], plan[j][1]
+                if is_fmu:
+                    blk._get(blk._c, blk._ovr, 1, blk._oval)
+                    v = blk._oval[0]
+                else:
+                    v = blk.pending
+                outs[j] = v
+                rec[j].append(v)
         wall = time.perf_counter() - t0
     finally:
         for blk in blocks.values():
             if isinstance(blk, _FmpyBlock):
                 blk.close()
     k_done = k if error else k + 1
+    tr = _new_trace(w, len(w.t))
+    for j, b in enumerate(order):
+        tr["out_" + b][:len(rec[j])] = rec[j]
     return _finish(tr, k_done, w), error, wall, setup
 
 
