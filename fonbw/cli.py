@@ -122,20 +122,16 @@ def cmd_identify(ns):
 
 
 def cmd_compensate(ns):
-    from .compensate import compensate
-    from .io import write_csv
+    from .compensate import compensate_file
 
-    m = _model(ns.model)
-    (rec,) = _records([ns.trajectory], need=("Hd",))
     if not ns.umin < ns.umax:
         raise CLIError(f"--umin ({ns.umin}) must be below --umax ({ns.umax})")
-    res = compensate(m, rec.hd, rec.dt, u_min=ns.umin, u_max=ns.umax)
-    u = getattr(res, "u", res)
-    write_csv(_out_path(ns.output), {"t": rec.t, "u": u, "Hd": rec.hd})
-    sat = getattr(res, "saturated", None)
-    nsat = int(sat.sum()) if sat is not None else 0
-    print(f"wrote {ns.output}: {len(u)} samples, u in [{min(u):.4g}, {max(u):.4g}] V"
-          + (f", {nsat} sample(s) saturated at the voltage limits" if nsat else ""))
+    res = compensate_file(ns.model, ns.trajectory, _out_path(ns.output), limits=(ns.umin, ns.umax),
+                          explicit=ns.explicit)
+    st = res.status
+    low, high, nc = int((st == 1).sum()), int((st == 2).sum()), int((st == 3).sum())
+    print(f"wrote {ns.output}: {len(res.u)} samples, u in [{res.u.min():.4g}, {res.u.max():.4g}] V; "
+          f"{low} sample(s) at u_min, {high} at u_max, {nc} not converged")
 
 
 def cmd_figures(ns):
@@ -205,6 +201,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("-o", "--output", required=True, metavar="U.csv")
     s.add_argument("--umin", type=float, default=0.0, help="lower voltage limit [V] (default 0)")
     s.add_argument("--umax", type=float, default=120.0, help="upper voltage limit [V] (default 120)")
+    s.add_argument("--explicit", action="store_true",
+                   help="one-step-delayed variant instead of the per-step implicit solve")
     s.set_defaults(func=cmd_compensate)
 
     s = sub.add_parser("cosim", help="closed-loop co-simulation of the FMUs (reference, fmpy, libcosim)")

@@ -95,3 +95,25 @@ def test_figures_are_real_pngs(tmp_path):
     assert len(pngs) == 4
     for p in pngs:
         assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 10_000
+
+
+def test_compensate_round_trip_through_the_model(tmp_path):
+    # a model whose per-step map u_k -> H_k is increasing, so eq. (16) has one root per step
+    # (with the paper's Table-1 set at 10 kHz it decreases: see README, compensation)
+    m = fonbw.FONBW(ku=[0.12, 5e-4], kh=2.0, rho=0.02, sigma=0.8, n=1.5, lam1=0.9, lam2=0.8)
+    d = tmp_path
+    m.save(d / "model.json")
+    t = np.arange(2000) * 1e-4
+    hd = 5 - 5 * np.cos(10 * np.pi * t) + 1.0  # stays inside the 0-120 V reach of the model
+    write_csv(tmp_path / "traj.csv", {"t": t, "Hd": hd})
+    r = run("compensate", d / "model.json", tmp_path / "traj.csv", "-o", tmp_path / "u.csv")
+    assert r.returncode == 0, r.stderr
+    rec = read_record(tmp_path / "u.csv", need=("u",))
+    # the model driven by the compensator's voltage reproduces the trajectory
+    y_back = m.simulate(rec.u, rec.dt)
+    ok = (rec.u > 0) & (rec.u < 120)
+    assert ok.mean() > 0.9
+    assert np.max(np.abs(y_back - hd)[ok]) < 1e-6
+    r = run("compensate", d / "model.json", tmp_path / "traj.csv", "-o", tmp_path / "u2.csv", "--umin", "5",
+            "--umax", "1")
+    assert r.returncode == 2 and "--umin" in r.stderr and not (tmp_path / "u2.csv").exists()
