@@ -258,3 +258,23 @@ def test_paper_table1_regime_is_identified():
         u = sine(f)
         err = np.sqrt(np.mean((res.model.simulate(u, DT) - truth.simulate(u, DT)) ** 2))
         assert err < NOISE, (f, err)
+
+
+def test_keyboard_interrupt_returns_best_model_so_far(truth):
+    rec = noisy_record(truth, eq19(T=2.0), seed=11)
+
+    def stop(x, f, nit):
+        if nit == 2:
+            raise KeyboardInterrupt
+
+    res = identify(rec, "fonbw", seed=0, max_evals=2000, callback=stop)
+    assert res.message == "interrupted" and not res.success
+    assert res.nfev == 3 * 50          # initial population + 2 generations
+    assert np.isfinite(res.rms)
+    np.testing.assert_allclose(res.rms, res.history[-1], rtol=1e-7)
+
+
+def test_unknown_memory_engine_is_refused(truth):
+    rec = noisy_record(truth, eq19(T=1.0), seed=0)
+    with pytest.raises(ValueError, match="memory must be one of"):
+        identify(rec, "fonbw", memory="infinite")
