@@ -1,6 +1,4 @@
 """Tests of fonbw.de.jde_minimize (jDE, Brest et al. 2006)."""
-import time
-
 import numpy as np
 import pytest
 from scipy.optimize import differential_evolution, rosen
