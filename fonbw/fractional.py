@@ -54,6 +54,9 @@ import math
 
 import numpy as np
 import numba as nb
+from llvmlite import ir
+from numba.core import cgutils, types
+from numba.extending import intrinsic
 
 __all__ = [
     "ENGINES",
@@ -64,6 +67,7 @@ __all__ = [
     "oustaloup_ss",
     "FracOp",
     "make_op",
+    "blocked_solve",
 ]
 
 ENGINES = ("fast", "exact", "short", "oustaloup")
@@ -251,6 +255,77 @@ def oustaloup_ss(lam: float, dt: float, N: int = 5, wb: float = 0.01, wh: float 
     return Ad, Bd[:, 0].copy(), Cd[0].copy(), float(Dd[0, 0])
 
 
+#: Leaf block of :func:`blocked_solve`: blocks this short sum their own
+#: history terms directly (cheaper than an FFT below a few hundred lags).
+EXACT_LEAF = 256
+
+
+def blocked_solve(w, x, leaf, leaf_size: int = EXACT_LEAF) -> int:
+    """Exact GL history sums for a sequence that is solved step by step, in
+    O(N log² N) (Hairer, Lubich & Schlichte, SIAM J. Sci. Stat. Comput. 6,
+    1985: divide and conquer with FFT convolutions).
+
+    The unknown sequence x_0 … x_{n−1} is produced block by block by
+    ``leaf(lo, hi, hist)``; on entry ``hist[k]`` (k in [lo, hi)) holds the
+    history terms ``Σ_{j<lo} w[k−j] x_j`` of all finished blocks; the leaf
+    adds the terms j in [lo, k) of its own block directly, writes
+    ``x[lo:hi]`` and returns the number of steps done so far (``hi`` to go
+    on; less stops the run, e.g. at a non-finite value). Between leaves, the contribution of a finished left
+    half to its right half is added by one FFT convolution; all halves of
+    one size reuse the transform of the same weight segment.
+
+    Parameters
+    ----------
+    w : ndarray
+        Weights by lag, ``w[0]`` unused (the current-sample coefficient is
+        the leaf's business); at least ``len(x)`` entries.
+    x : ndarray
+        The sequence, written by the leaves (its length is the run length).
+    leaf : callable
+        ``leaf(lo, hi, hist) -> int`` as above.
+    leaf_size : int
+        Block length summed directly.
+
+    Returns
+    -------
+    int
+        Number of steps completed (n unless a leaf stopped early).
+    """
+    from scipy import fft as sfft
+
+    n = len(x)
+    hist = np.zeros(n)
+    size = int(leaf_size)
+    while size < n:
+        size *= 2
+    wspec = {}
+
+    def weights(s):
+        if s not in wspec:
+            seg = np.zeros(s)
+            m = min(s, n)
+            seg[1:m] = w[1:m]
+            wspec[s] = sfft.rfft(seg)
+        return wspec[s]
+
+    def run(lo, s):
+        hi = min(lo + s, n)
+        if s <= leaf_size:
+            return leaf(lo, hi, hist)
+        half = s // 2
+        mid = lo + half
+        done = run(lo, half)
+        if done < min(mid, n) or mid >= n:
+            return done
+        # left half [lo, mid) → right half [mid, hi): lags 1 … s−1; a circular
+        # convolution of length s aliases only outputs below `half`
+        conv = sfft.irfft(sfft.rfft(x[lo:mid], s) * weights(s), s)
+        hist[mid:hi] += conv[half:half + hi - mid]
+        return run(mid, half)
+
+    return run(0, size)
+
+
 @dataclasses.dataclass
 class FracOp:
     """Compiled-kernel description of one fractional derivative D^λ at step dt.
@@ -360,7 +435,17 @@ def make_op(lam: float, dt: float, memory: str = "fast", *, n_steps: int | None 
 # function.
 #
 # parameter block: [kind, a, W, M, m, w(W), c(M), r(M), A(m*m), B(m), C(m)]
-# state block:     [pos, count, buf(2*max(W,1)), z(nz)]   nz = M (GL) or m (Oustaloup)
+# state block:     [pos, count, hz, buf(2*max(W,1)), z(nz), tmp(m)]
+#   nz = M (GL) or m (Oustaloup); tmp (scratch) only for Oustaloup;
+#   hz = the modes' part of the history (Σ c_i z_i, or C·z), refreshed by
+#   every push, so a history evaluation (several per step in the
+#   compensator) only sums the exact window.
+#
+# The kernels address both blocks through integer offsets (a descriptor
+# tuple of plain numbers, :func:`op_desc`), never through array views: a
+# tuple of two dozen views pays a reference-count round trip per view each
+# time it crosses a call, about 150 ns a model step — more than all the
+# arithmetic of the fast engine.
 
 def pack(op: FracOp) -> np.ndarray:
     """Flat parameter block of an operator (see the layout above)."""
@@ -372,128 +457,199 @@ def pack(op: FracOp) -> np.ndarray:
 
 
 def state_size(op: FracOp) -> int:
-    return 2 + 2 * max(op.window, 1) + op.nz
+    """Length of an operator's state block (layout above)."""
+    extra = op.nz if op.kind == KIND_GL else 2 * op.nz
+    return 3 + 2 * max(op.window, 1) + extra
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _sizes(P, o):
+    """(W, M, m, parameter-block length, state-block length) of the operator at P[o]."""
     W = int(P[o + 2])
     M = int(P[o + 3])
     m = int(P[o + 4])
     psize = 5 + W + 2 * M + m * m + 2 * m
-    ssize = 2 + 2 * max(W, 1) + (M if P[o] == KIND_GL else m)
+    ssize = 3 + 2 * max(W, 1) + (M if P[o] == KIND_GL else 2 * m)
     return W, M, m, psize, ssize
 
 
-@nb.njit(cache=True, inline="always")
-def _dot_at(a, b, off, n):
-    """Σ_{j<n} a_j b_{off+j} (see :func:`_dot`; no slice is built: in the
-    hot path building a slice costs more than a short window)."""
-    h0 = 0.0
-    h1 = 0.0
-    h2 = 0.0
-    h3 = 0.0
-    j = 0
-    while j + 3 < n:
-        h0 += a[j] * b[off + j]
-        h1 += a[j + 1] * b[off + j + 1]
-        h2 += a[j + 2] * b[off + j + 2]
-        h3 += a[j + 3] * b[off + j + 3]
-        j += 4
-    while j < n:
-        h0 += a[j] * b[off + j]
-        j += 1
-    return (h0 + h1) + (h2 + h3)
+#: Index type of the kernels: unsigned, so numba emits no negative-index
+#: wraparound (a compare and a select on every access, which also blocks
+#: vectorization).
+_U = nb.uint64
 
 
 @nb.njit(cache=True, inline="always")
-def _dot(a, b, n):
-    """Σ_{j<n} a_j b_j with four accumulators (no fastmath: results must not
-    depend on where the compiler inlines this; four chains still break the
-    add latency)."""
-    h0 = 0.0
-    h1 = 0.0
-    h2 = 0.0
-    h3 = 0.0
-    j = 0
-    while j + 3 < n:
-        h0 += a[j] * b[j]
-        h1 += a[j + 1] * b[j + 1]
-        h2 += a[j + 2] * b[j + 2]
-        h3 += a[j + 3] * b[j + 3]
-        j += 4
-    while j < n:
-        h0 += a[j] * b[j]
-        j += 1
-    return (h0 + h1) + (h2 + h3)
+def op_desc(P, o, q):
+    """Descriptor of the operator with parameter block at ``P[o]`` and state
+    block at ``S[q]``, built once per run (or once per stepper call).
 
-
-@nb.njit(cache=True, inline="always")
-def op_views(P, o, S, q):
-    """Views of one operator's blocks, built once per run (slicing per step
-    costs more than the arithmetic of a short window).
-
-    Returns ``(kind, a, W, w, c, r, A, B, C, ctr, buf, z)``; ``ctr = [pos,
-    count]``. The ring holds the newest sample at ``pos`` and lag j at
-    ``pos + j − 1`` with a mirrored copy behind, so the window is the
-    contiguous slice ``buf[pos:pos+W]``.
+    Returns ``(kind, W, M, m, ow, oc, orr, oA, oB, oC, q, qb, qz, a)``: sizes,
+    offsets of w, c, r, A, B, C in P, of the counters, ring buffer and modes
+    in S (all unsigned), and the coefficient ``a`` of the current sample in
+    (*). The ring holds the newest sample at ``qb + pos`` and lag j at
+    ``qb + pos + j − 1`` with a mirrored copy behind, so the window is always
+    contiguous.
     """
     W, M, m, _, _ = _sizes(P, o)
-    Wb = max(W, 1)
-    zo = q + 2 + 2 * Wb
-    w = P[o + 5:o + 5 + W]
-    c = P[o + 5 + W:o + 5 + W + M]
-    r = P[o + 5 + W + M:o + 5 + W + 2 * M]
-    Ao = o + 5 + W + 2 * M
-    A = P[Ao:Ao + m * m].reshape((m, m))
-    B = P[Ao + m * m:Ao + m * m + m]
-    C = P[Ao + m * m + m:Ao + m * m + 2 * m]
-    nz = M if P[o] == KIND_GL else m
-    return (int(P[o]), P[o + 1], W, w, c, r, A, B, C, S[q:q + 2], S[q + 2:q + 2 + 2 * Wb], S[zo:zo + nz])
+    ow = o + 5
+    oc = ow + W
+    orr = oc + M
+    oA = orr + M
+    oB = oA + m * m
+    oC = oB + m
+    qb = q + 3
+    qz = qb + 2 * max(W, 1)
+    return (int(P[o]), _U(W), _U(M), _U(m), _U(ow), _U(oc), _U(orr), _U(oA), _U(oB), _U(oC),
+            _U(q), _U(qb), _U(qz), P[o + 1])
+
+
+# Explicit SIMD for the two inner loops. Without fastmath LLVM vectorizes no
+# floating-point reduction (it may not reassociate), and fastmath would let
+# the summation order depend on where the compiler inlines the loop, which
+# would break the bit-identity of stepper and batch runs. These intrinsics
+# emit the vector IR directly: eight lane accumulators (two <4 x double>),
+# lane t summing the terms j ≡ t (mod 8), combined in a fixed tree. Every
+# operation is a plain IEEE add or multiply (no contraction into fma), so the
+# result is the same wherever it is inlined, with or without AVX.
+
+_F64 = ir.DoubleType()
+_V4 = ir.VectorType(_F64, 4)
+_V4ZERO = ir.Constant(_V4, [ir.Constant(_F64, 0.0)] * 4)
+
+
+def _v4ptr(builder, base, off):
+    return builder.bitcast(builder.gep(base, [off]), _V4.as_pointer())
+
+
+def _lanes_sum(builder, v0, v1):
+    """((s0+s1)+(s2+s3)) + ((s4+s5)+(s6+s7)) of the lanes of v0 ‖ v1."""
+    s = [builder.extract_element(v, ir.Constant(ir.IntType(32), t)) for v in (v0, v1) for t in range(4)]
+    return builder.fadd(builder.fadd(builder.fadd(s[0], s[1]), builder.fadd(s[2], s[3])),
+                        builder.fadd(builder.fadd(s[4], s[5]), builder.fadd(s[6], s[7])))
+
+
+@intrinsic
+def _vdot8(typingctx, a, ao, b, bo, nblk):
+    """Σ_{j<8·nblk} a[ao+j] b[bo+j] in eight lanes (see above); unsigned offsets."""
+    sig = types.float64(a, ao, b, bo, nblk)
+
+    def codegen(context, builder, signature, args):
+        av, ao_, bv, bo_, n_ = args
+        pa = builder.gep(context.make_array(signature.args[0])(context, builder, av).data, [ao_])
+        pb = builder.gep(context.make_array(signature.args[2])(context, builder, bv).data, [bo_])
+        acc0 = cgutils.alloca_once_value(builder, _V4ZERO)
+        acc1 = cgutils.alloca_once_value(builder, _V4ZERO)
+        i64 = n_.type
+        with cgutils.for_range(builder, n_) as loop:
+            o0 = builder.shl(loop.index, ir.Constant(i64, 3))
+            o1 = builder.add(o0, ir.Constant(i64, 4))
+            p0 = builder.fmul(builder.load(_v4ptr(builder, pa, o0), align=8),
+                              builder.load(_v4ptr(builder, pb, o0), align=8))
+            p1 = builder.fmul(builder.load(_v4ptr(builder, pa, o1), align=8),
+                              builder.load(_v4ptr(builder, pb, o1), align=8))
+            builder.store(builder.fadd(builder.load(acc0), p0), acc0)
+            builder.store(builder.fadd(builder.load(acc1), p1), acc1)
+        return _lanes_sum(builder, builder.load(acc0), builder.load(acc1))
+
+    return sig, codegen
+
+
+@intrinsic
+def _vmodes8(typingctx, P, oc, orr, S, qz, nblk, old):
+    """For i < 8·nblk: z_i ← r_i (z_i + old) (z at S[qz+i], r at P[orr+i]);
+    returns Σ c_i z_i (c at P[oc+i]) in eight lanes (see above)."""
+    sig = types.float64(P, oc, orr, S, qz, nblk, old)
+
+    def codegen(context, builder, signature, args):
+        Pv, oc_, or_, Sv, qz_, n_, old_ = args
+        pdata = context.make_array(signature.args[0])(context, builder, Pv).data
+        pc = builder.gep(pdata, [oc_])
+        pr = builder.gep(pdata, [or_])
+        pz = builder.gep(context.make_array(signature.args[3])(context, builder, Sv).data, [qz_])
+        vold = cgutils.alloca_once_value(builder, _V4ZERO)
+        v = builder.load(vold)
+        for t in range(4):
+            v = builder.insert_element(v, old_, ir.Constant(ir.IntType(32), t))
+        acc0 = cgutils.alloca_once_value(builder, _V4ZERO)
+        acc1 = cgutils.alloca_once_value(builder, _V4ZERO)
+        i64 = n_.type
+        with cgutils.for_range(builder, n_) as loop:
+            for acc, k in ((acc0, 0), (acc1, 4)):
+                o = builder.add(builder.shl(loop.index, ir.Constant(i64, 3)), ir.Constant(i64, k))
+                zp = _v4ptr(builder, pz, o)
+                z = builder.fmul(builder.load(_v4ptr(builder, pr, o), align=8),
+                                 builder.fadd(builder.load(zp, align=8), v))
+                builder.store(z, zp, align=8)
+                builder.store(builder.fadd(builder.load(acc),
+                                           builder.fmul(builder.load(_v4ptr(builder, pc, o), align=8), z)), acc)
+        return _lanes_sum(builder, builder.load(acc0), builder.load(acc1))
+
+    return sig, codegen
 
 
 @nb.njit(cache=True, inline="always")
-def op_history(v):
-    """History part h_k of (*) from the state before step k (views ``v``)."""
-    kind, a, W, w, c, r, A, B, C, ctr, buf, z = v
+def _dot_off(a, ao, b, bo, n):
+    """Σ_{j<n} a[ao+j] b[bo+j] (unsigned offsets): blocks of eight by
+    :func:`_vdot8`, then the remainder in order."""
+    nb8 = n >> _U(3)
+    s = _vdot8(a, ao, b, bo, nb8)
+    j = nb8 << _U(3)
+    while j < n:
+        s += a[ao + j] * b[bo + j]
+        j += _U(1)
+    return s
+
+
+@nb.njit(cache=True, inline="always")
+def _modes_push(P, oc, orr, S, qz, M, old):
+    """z_i ← r_i (z_i + old) for the M modes; returns the new Σ c_i z_i
+    (blocks of eight by :func:`_vmodes8`, then the remainder in order)."""
+    nb8 = M >> _U(3)
+    s = _vmodes8(P, oc, orr, S, qz, nb8, old)
+    i = nb8 << _U(3)
+    while i < M:
+        z = P[orr + i] * (S[qz + i] + old)
+        s += P[oc + i] * z
+        S[qz + i] = z
+        i += _U(1)
+    return s
+
+
+@nb.njit(cache=True, inline="always")
+def op_history(P, S, d):
+    """History part h_k of (*) from the state before step k (descriptor ``d``)."""
+    kind, W, M, m, ow, oc, orr, oA, oB, oC, q, qb, qz, a = d
     if kind == KIND_GL:
-        pos = int(ctr[0])
-        cnt = int(ctr[1])
-        n = W if cnt > W else cnt
-        h = _dot_at(w, buf, pos, n)
-        if c.shape[0] > 0:
-            h += _dot(c, z, c.shape[0])
-        return h
-    return _dot(C, z, C.shape[0])
+        cnt = S[q + _U(1)]
+        n = W if cnt >= W else _U(cnt)
+        return _dot_off(P, ow, S, qb + _U(S[q]), n) + S[q + _U(2)]
+    return S[q + _U(2)]
 
 
 @nb.njit(cache=True, inline="always")
-def _modes(r, z, old):
-    for i in range(r.shape[0]):
-        z[i] = r[i] * (z[i] + old)
-
-
-@nb.njit(cache=True, inline="always")
-def op_push(v, x):
-    """Advance the operator's state with the sample x_k (views ``v``)."""
-    kind, a, W, w, c, r, A, B, C, ctr, buf, z = v
+def op_push(P, S, d, x):
+    """Advance the operator's state with the sample x_k (descriptor ``d``)."""
+    kind, W, M, m, ow, oc, orr, oA, oB, oC, q, qb, qz, a = d
     if kind == KIND_GL:
-        pos = int(ctr[0]) - 1
-        if pos < 0:
-            pos = W - 1
-        if r.shape[0] > 0:
-            # buf[pos] still holds lag W, the sample leaving the exact window
-            _modes(r, z, buf[pos])
-        buf[pos] = x
-        buf[pos + W] = x
-        ctr[0] = pos
+        pos = _U(S[q])
+        if pos == _U(0):
+            pos = W
+        pos -= _U(1)
+        if M > _U(0):
+            # S[qb+pos] still holds lag W, the sample leaving the exact window
+            S[q + _U(2)] = _modes_push(P, oc, orr, S, qz, M, S[qb + pos])
+        S[qb + pos] = x
+        S[qb + pos + W] = x
+        S[q] = pos
     else:
-        m = B.shape[0]
-        tmp = np.empty(m)
+        qt = qz + m  # scratch: z ← A z + B x needs the old z throughout
         for i in range(m):
-            tmp[i] = B[i] * x + _dot(A[i], z, m)
-        z[:] = tmp
-    ctr[1] += 1.0
+            S[qt + i] = P[oB + i] * x + _dot_off(P, oA + i * m, S, qz, m)
+        for i in range(m):
+            S[qz + i] = S[qt + i]
+        S[q + _U(2)] = _dot_off(P, oC, S, qz, m)
+    S[q + _U(1)] += 1.0
 
 
 @nb.njit(cache=True)
@@ -501,11 +657,11 @@ def _apply_op(P, x):
     out = np.empty(x.shape[0])
     _, _, _, _, ss = _sizes(P, 0)
     S = np.zeros(ss)
-    v = op_views(P, 0, S, 0)
-    a = P[1]
+    d = op_desc(P, 0, 0)
+    a = d[13]
     for k in range(x.shape[0]):
-        out[k] = a * x[k] + op_history(v)
-        op_push(v, x[k])
+        out[k] = a * x[k] + op_history(P, S, d)
+        op_push(P, S, d, x[k])
     return out
 
 
