@@ -35,10 +35,20 @@ def _model(path):
     return load_model(path)
 
 
-def _records(paths, need=("u", "y")):
-    from .io import read_record
+def _records(paths, need=("u", "y"), zero=False):
+    """Read records; with ``zero`` remove each one's sensor offset at rest (io.zero_at_rest)."""
+    from .io import read_record, zero_at_rest
 
-    return [read_record(p, need=need) for p in paths]
+    recs = [read_record(p, need=need) for p in paths]
+    if not zero:
+        return recs
+    out = []
+    for r in recs:
+        r2, y0 = zero_at_rest(r)
+        if y0:
+            print(f"{r.path}: removed the offset at rest, {y0:.4g} µm", file=sys.stderr)
+        out.append(r2)
+    return out
 
 
 def _out_path(path):
@@ -86,7 +96,7 @@ def validation_metrics(model, rec) -> dict:
 
 def cmd_validate(ns):
     m = _model(ns.model)
-    recs = _records(ns.data)
+    recs = _records(ns.data, zero=not ns.keep_offset)
     res = [validation_metrics(m, r) for r in recs]
     out = res[0] if len(res) == 1 else {"records": res, **{k: max(r[k] for r in res) for k in ("rms", "rms_percent", "max_abs")}}
     if ns.json:
@@ -100,7 +110,7 @@ def cmd_validate(ns):
 def cmd_identify(ns):
     from .identify import identify
 
-    recs = _records(ns.data)
+    recs = _records(ns.data, zero=not ns.keep_offset)
     if ns.seed is not None and ns.seed < 0:
         raise CLIError(f"--seed must be ≥ 0, got {ns.seed}")
     kw = dict(kind=ns.model, seed=ns.seed, progress=not ns.quiet)
@@ -187,12 +197,16 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--workers", type=int)
     s.add_argument("--memory", choices=ENGINES)
     s.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    s.add_argument("--keep-offset", action="store_true",
+                   help="do not remove the sensor offset at rest (mean y before the drive starts)")
     s.set_defaults(func=cmd_identify)
 
     s = sub.add_parser("validate", help="RMS / %% of range / max error of a model on records (t,u,y)")
     s.add_argument("model", metavar="MODEL.json")
     s.add_argument("data", nargs="+", metavar="DATA.csv")
     s.add_argument("--json", action="store_true", help="print a JSON object (keys rms, rms_percent, max_abs)")
+    s.add_argument("--keep-offset", action="store_true",
+                   help="do not remove the sensor offset at rest (mean y before the drive starts)")
     s.set_defaults(func=cmd_validate)
 
     s = sub.add_parser("compensate", help="feedforward input u for a desired trajectory (t,Hd), eq. (16)")

@@ -24,7 +24,7 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-__all__ = ["DataError", "Record", "read_record", "write_csv", "atomic_open"]
+__all__ = ["DataError", "Record", "read_record", "write_csv", "atomic_open", "rest_offset", "zero_at_rest"]
 
 #: Minimum number of samples a record must hold to be usable.
 MIN_SAMPLES = 8
@@ -167,6 +167,36 @@ def read_record(path, need: Iterable[str] = ("u", "y"), jitter_tol: float = 1e-3
         )
     arr = lambda c: np.asarray(cols[c], dtype=float) if c in cols else None
     return Record(t=t, u=arr("u"), y=arr("y"), dt=dt, path=path, hd=arr("Hd"))
+
+
+#: Fewest leading samples at constant input that count as a rest segment.
+MIN_REST = 10
+
+
+def rest_offset(rec: Record) -> tuple[float, int]:
+    """Sensor offset at rest: mean of y over the leading samples at constant u.
+
+    Real loggers start recording before the drive and read a non-zero
+    displacement at rest; the models start from H = 0 at rest. Returns
+    ``(offset [µm], samples used)``, ``(0.0, 0)`` when the record does not
+    start with at least ``MIN_REST`` samples at its first input value.
+    """
+    if rec.u is None or rec.y is None:
+        return 0.0, 0
+    scale = max(1.0, float(np.max(np.abs(rec.u))))
+    moved = np.flatnonzero(np.abs(rec.u - rec.u[0]) > 1e-9 * scale)
+    m = int(moved[0]) if moved.size else len(rec.u)
+    if m < MIN_REST:
+        return 0.0, 0
+    return float(np.mean(rec.y[:m])), m
+
+
+def zero_at_rest(rec: Record) -> tuple[Record, float]:
+    """A copy of the record with its rest offset (:func:`rest_offset`) removed from y."""
+    y0, _ = rest_offset(rec)
+    if y0 == 0.0:
+        return rec, 0.0
+    return dataclasses.replace(rec, y=rec.y - y0), y0
 
 
 @contextlib.contextmanager
