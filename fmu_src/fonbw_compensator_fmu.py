@@ -17,9 +17,14 @@ class FonbwCompensator(FonbwModelSlave):
         self._io(("y_ref", "um", "Desired actuator displacement, held constant over each "
                                  "communication step"),
                  ("u", "V", "Compensating actuator voltage at the end of the step"))
-        self._register_fonbw_parameters()
+        res = self._register_fonbw_parameters()
+        lo, hi = res.get("limits", (0.0, 120.0))
+        self._parameter("u_min", lo, "V", "Lower voltage limit of the compensator (amplifier "
+                                          "range); unreachable targets saturate here")
+        self._parameter("u_max", hi, "V", "Upper voltage limit of the compensator (amplifier "
+                                          "range); unreachable targets saturate here")
         self._default_experiment()
 
     def _build(self):
         import fonbw  # bundled copy
-        return fonbw.compensator(self._fonbw_model(), self.dt)
+        return fonbw.compensator(self._fonbw_model(), self.dt, limits=(self.u_min, self.u_max))

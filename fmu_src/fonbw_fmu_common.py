@@ -19,9 +19,14 @@ one build_fmu.py run carry identical copies, so sharing it is harmless.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import math
+import os
 import re
+import shutil
+import sys
+import tempfile
 from pathlib import Path
 from typing import Any, Dict, List, Optional
 from xml.etree.ElementTree import Element, SubElement
@@ -80,6 +85,57 @@ def base_unit(name: str) -> Optional[Dict[str, str]]:
     if factor != 1.0:
         attrs["factor"] = repr(factor)
     return attrs
+
+
+def _tree_digest(folder: Path) -> str:
+    """SHA-256 over the relative paths and bytes of the source files of a package."""
+    h = hashlib.sha256()
+    for p in sorted(q for q in folder.rglob("*") if q.is_file() and "__pycache__" not in q.parts):
+        h.update(p.relative_to(folder).as_posix().encode() + b"\0" + p.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def use_bundled_fonbw(resources: str) -> Optional[str]:
+    """Make `import fonbw` load the fonbw sources bundled in this FMU, preferably
+    from a content-addressed copy in a per-user cache folder; return the folder
+    put first on sys.path (None if the process already imported fonbw: all
+    FMUs of a process share one interpreter and sys.modules).
+
+    Why a copy: numba's on-disk cache (cache=True) lives next to the sources and
+    is keyed by their path and mtime.  Masters that extract the FMU to a fresh
+    temporary folder on every run (fmpy's simulate_fmu, libcosim) would
+    otherwise recompile every kernel in every process.  The copy sits at
+    <cache>/<sha256 of the bundled sources> and is checked against that digest
+    before use, so the code run is byte for byte the bundled code.  <cache> is
+    $FONBW_FMU_CACHE, else $XDG_CACHE_HOME/fonbw-fmu, else ~/.cache/fonbw-fmu.
+    Any problem (read-only home, digest mismatch) falls back to the bundled
+    folder in place, which only costs the compile time.
+    """
+    if "fonbw" in sys.modules:
+        return None
+    path = str(resources)
+    try:
+        src = Path(resources) / "fonbw"
+        digest = _tree_digest(src)
+        root = Path(os.environ.get("FONBW_FMU_CACHE")
+                    or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "fonbw-fmu")
+        target = root / digest[:32]
+        if not (target / "fonbw").is_dir():
+            root.mkdir(parents=True, exist_ok=True)
+            tmp = Path(tempfile.mkdtemp(prefix=".tmp-", dir=root))
+            shutil.copytree(src, tmp / "fonbw", ignore=shutil.ignore_patterns("__pycache__"))
+            try:
+                os.rename(tmp, target)  # atomic; fails if another process won the race
+            except OSError:
+                shutil.rmtree(tmp, ignore_errors=True)
+        if _tree_digest(target / "fonbw") == digest:
+            path = str(target)
+    except OSError:
+        pass
+    if path in sys.path:
+        sys.path.remove(path)
+    sys.path.insert(0, path)
+    return path
 
 
 class UReal(Real):
@@ -147,23 +203,39 @@ class FonbwSlaveBase(Fmi2Slave):
         self._x_in = 0.0
         self._x_out = 0.0
         self._param_names: List[str] = []
+        self._restoring = False      # True while fmi2SetFMUstate writes parameters
         self.dt = 1e-4
 
     # ---- registration helpers ------------------------------------------------
+    def _fixed_setter(self, name: str, cast):
+        """Setter of a 'fixed' parameter: once the stepper is built, a new value
+        would silently disagree with it, so it is refused with an error log
+        (pythonfmu offers no error status from fmi2SetXXX)."""
+        def set_(v):
+            v = cast(v)
+            old = getattr(self, name)
+            if self._stepper is not None and not self._restoring and v != old:
+                self.log(f"{self.instance_name}: {name} is a fixed parameter; the new value "
+                         f"{v!r} is ignored after initialization (kept {old!r})", Fmi2Status.error)
+                return
+            setattr(self, name, v)
+        return set_
+
     def _parameter(self, name: str, start: float, unit: Optional[str], description: str):
         setattr(self, name, float(start))
         self._param_names.append(name)
         self.register_variable(UReal(
             name, unit=unit, description=description,
             causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
-            initial=Fmi2Initial.exact))
+            initial=Fmi2Initial.exact, setter=self._fixed_setter(name, float)))
 
     def _string_parameter(self, name: str, start: str, description: str):
         setattr(self, name, str(start))
         self._param_names.append(name)
         self.register_variable(String(
             name, description=description, causality=Fmi2Causality.parameter,
-            variability=Fmi2Variability.fixed, initial=Fmi2Initial.exact))
+            variability=Fmi2Variability.fixed, initial=Fmi2Initial.exact,
+            setter=self._fixed_setter(name, str)))
 
     def _io(self, inp: tuple, out: tuple):
         """Register the input (name, unit, description) and output."""
@@ -211,6 +283,7 @@ class FonbwSlaveBase(Fmi2Slave):
         try:
             problems = self._check_dt() + self._check_parameters()
             if not problems:
+                use_bundled_fonbw(self.resources)  # before the first `import fonbw`
                 stepper = self._build()
                 # Warm-up step then reset: numba compiles on the first call;
                 # do it now rather than inside the first (timed) doStep.
@@ -256,8 +329,10 @@ class FonbwSlaveBase(Fmi2Slave):
                 y = step(u)
             self._x_out = float(y)
         except Exception as e:
-            self.log(f"{self.instance_name}: doStep at t={current_time!r} failed: "
-                     f"{type(e).__name__}: {e}", Fmi2Status.error)
+            # the stepper may be half-way through the step: refuse further steps
+            self._stepper = None
+            self._fault = f"doStep at t={current_time!r} failed: {type(e).__name__}: {e}"
+            self.log(f"{self.instance_name}: {self._fault}", Fmi2Status.error)
             return False
         return True
 
@@ -272,9 +347,13 @@ class FonbwSlaveBase(Fmi2Slave):
     def _set_fmu_state(self, state: Dict[str, Any]):
         try:
             import numpy as np
-            for v in self.vars.values():
-                if v.name in state and v.setter is not None:
-                    v.setter(state[v.name])
+            self._restoring = True
+            try:
+                for v in self.vars.values():
+                    if v.name in state and v.setter is not None:
+                        v.setter(state[v.name])
+            finally:
+                self._restoring = False
             self._x_out = float(state.get(self._out_name, 0.0))
             arr = state.get("__stepper__")
             if arr is None:
@@ -327,7 +406,7 @@ class FonbwModelSlave(FonbwSlaveBase):
     """Common part of the hysteresis and compensator FMUs: the FONBW parameter
     set as FMU parameters, start values from the build-time parameter set."""
 
-    def _register_fonbw_parameters(self):
+    def _register_fonbw_parameters(self) -> Dict[str, Any]:
         # Resource file written by build_fmu.py: {"model": <fonbw model dict>, "dt": s}
         res = read_json(Path(self.resources) / MODEL_RESOURCE)
         p = fonbw_parameters(res["model"])
@@ -359,6 +438,7 @@ class FonbwModelSlave(FonbwSlaveBase):
         self._parameter("dt", float(res.get("dt", 1e-4)), "s",
                         "Internal fixed step of the GL discretization; every communication "
                         "step must be a whole multiple of it")
+        return res
 
     def _model_kwargs(self) -> Dict[str, Any]:
         return dict(ku=[getattr(self, f"ku{i}") for i in range(1, self._n_ku + 1)],
@@ -383,5 +463,5 @@ class FonbwModelSlave(FonbwSlaveBase):
         return problems
 
     def _fonbw_model(self):
-        import fonbw  # the copy bundled in resources/ (first on sys.path)
+        import fonbw  # the bundled copy (use_bundled_fonbw)
         return fonbw.FONBW(**self._model_kwargs())

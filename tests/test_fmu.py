@@ -34,7 +34,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 DT = 1e-4
 N = 20000              # 2 s at 10 kHz
-N_SHORT = 4000         # instance-independence and libcosim runs
+N_SHORT = 2000         # instance independence, engines, libcosim runs
 REL_TOL = 1e-10
 # Parameters changed through fmi2SetReal in initialization mode (instance B)
 SET_PARAMS = {"lam1": 0.9, "lam2": 0.8, "kh": -2.5e4}
@@ -253,6 +253,11 @@ for h in (1.5 * DT, 0.5 * DT, 0.0):
     rep["bad_steps"].append({"h": h, "status": status_of(s.doStep, 0.0, h), "logs": list(logs)})
 rep["after_bad_status"] = status_of(s.doStep, 0.0, 3 * DT)
 rep["after_bad_y"] = s.getReal([vr["y"]])[0]
+logs.clear()
+kh0 = s.getReal([vr["kh"]])[0]
+rep["set_fixed_status"] = status_of(s.setReal, [vr["kh"]], [2 * kh0])
+rep["set_fixed_logs"] = list(logs)
+rep["kh_after"], rep["kh_before"] = s.getReal([vr["kh"]])[0], kh0
 s2, vr2 = new(*H, "step2")
 s2.setReal([vr2["u"]], [sig["u"][0]])
 s2.doStep(0.0, 3 * DT)
@@ -411,15 +416,25 @@ def test_parameters_carry_start_values_of_the_parameter_set(work):
 
 def test_fmu_uses_its_bundled_fonbw(work, fmpy_run):
     # Even when fonbw is importable in the host (e.g. an editable install), the
-    # FMU's resources folder comes first on sys.path, so every fonbw module the
-    # FMUs loaded must come from an extracted FMU; a source file missing from
-    # the bundle would raise there instead of being picked up elsewhere.
+    # FMUs import the fonbw sources they carry: either from the extracted FMU
+    # or from the digest-checked copy in the FMU cache folder (fonbw_fmu_common.
+    # use_bundled_fonbw).  Either way every loaded module file must be byte for
+    # byte the file in the FMU, and must not be this repository's file.
     _, rep = fmpy_run
     files = rep["fonbw_files"]
     assert "fonbw" in files and "fonbw.hysteresis" in files and "fonbw.plant" in files
-    unzip = (work / "unzip").resolve()
+    pkg = Path(files["fonbw"]).resolve().parent
+    assert pkg != (ROOT / "fonbw").resolve()
+    # (the user cache is used on purpose: it is content-addressed, and it spares
+    # the numba compile on every test run with unchanged fonbw sources)
+    cache = Path(os.environ.get("FONBW_FMU_CACHE") or Path(
+        os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "fonbw-fmu")
+    assert pkg.is_relative_to((work / "unzip").resolve()) or \
+        pkg.is_relative_to(cache.resolve()), pkg
+    bundled = work / "unzip" / "default" / "FonbwHysteresis" / "resources" / "fonbw"
     for mod, f in files.items():
-        assert f is not None and Path(f).resolve().is_relative_to(unzip), (mod, f)
+        rel = Path(f).resolve().relative_to(pkg)
+        assert Path(f).read_bytes() == (bundled / rel).read_bytes(), mod
 
 
 def test_hysteresis_fmu_equals_library(fmpy_run, ref):
@@ -535,3 +550,9 @@ def test_compensator_chain_runs_in_libcosim(cosim_run, ref):
     assert _rel(out["chain_hyst2"], ref["y_chain"]) <= REL_TOL
     h_in = np.concatenate([[0.0], out["chain_hyst2"]])
     assert _rel(out["chain_plant2"], _plant_reference(h_in)[1:]) <= REL_TOL
+
+
+def test_fixed_parameter_change_after_initialization_is_ignored_with_log(fmpy_run):
+    _, rep = fmpy_run
+    assert rep["kh_after"] == rep["kh_before"]  # the stepper and the variable agree
+    assert any(st == 3 and "kh" in m and "fixed" in m for _, st, m in rep["set_fixed_logs"])
