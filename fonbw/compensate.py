@@ -1,0 +1,857 @@
+"""Feedforward hysteresis compensation by the inverse multiplicative structure.
+
+The paper's compensator (eqs. 16–17) gets the voltage from the desired
+displacement H_d without inverting the model:
+
+    u(t) = (H_d(t) − G(u, t)) / k_u1,
+    G(u, t) = k_h ħ(t) + k_u2 u² + … + k_uN u^N .
+
+G depends on the *current* u (through the polynomial and through ħ, which
+eq. (11) ties to D^λ1 u at the same instant), so eq. (16) is implicit at every
+step. With the model discretized as in :mod:`fonbw.hysteresis` it is exactly
+
+    find u_k in [u_min, u_max] with H(u_k; history up to k−1) = H_d,k ,
+
+a scalar root find on the model's own step function. Each step here evaluates
+the model's compiled step with ``commit=False`` inside a safeguarded root
+finder (secant from the previous voltage with the previous local slope;
+Brent's method as soon as a sign change brackets the root; a bracket over the
+whole voltage range as the fallback), then commits one step with the root.
+Model and compensator therefore share their numerics (memory engine
+included), and the model driven by the compensator's voltage reproduces H_d
+to the solver tolerance.
+
+The same per-step inversion serves CBW (eq. 21: u = (H_d − k_b D ĥ)/k_a,
+implicit in ĥ for the same reason) and the model of Zhu et al. (eq. 22).
+
+Zhu et al., eq. (22)
+    As written, eq. (22) divides by (k1/τ) e^(−t/τ): the direct input term of
+    eq. (20) decays with absolute time (τ ≈ 2e-5 s in Table 1), so after a
+    few τ the division is by a number that underflows to zero and eq. (22)
+    gives u → ∞. What actually carries u into the output after that is the
+    Bouc-Wen state h (through A u̇ and δ u sgn u̇). The honest implementation
+    is the per-step inversion of the discrete model (x_k as a function of
+    u_k, mechanics included), which is what :func:`compensate` does for
+    ``Zhu2016``. Its one-step authority is small (the force acts on x_k
+    through the mechanics' Γ ≈ dt²/(2 m0)), so it saturates more readily than
+    FONBW or CBW; the result reports every saturated sample.
+
+Explicit (one-step-delayed) variant
+    ``explicit=True`` evaluates G with the previous voltage and the previous
+    hysteretic state, u_k = (H_d,k − k_h ħ_(k−1) − Σ_(i≥2) k_ui u_(k−1)^i)/k_u1
+    (CBW: u_k = (H_d,k − k_b D h_(k−1))/k_a), which is how a block diagram
+    with a unit delay in the loop of Fig. 5 would run. It tracks less well;
+    offered for comparison only. Not defined for Zhu2016 (see above).
+
+Voltage limits default to the paper's amplifier range 0–120 V. A sample
+whose H_d cannot be reached within the limits gets the limit nearer to the
+solution and is reported as saturated; a sample whose equation has no root
+the solver can find (a jump of the model's step map, e.g. the δ u sgn u̇ term
+of eq. 20 at u̇ = 0) gets the voltage of smallest residual and is reported as
+not converged.
+
+Units: u [V], H_d and outputs [µm], dt and t [s].
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import sys
+import types
+
+import numba as nb
+import numpy as np
+
+from . import hysteresis as _hy
+
+__all__ = [
+    "compensate",
+    "compensator",
+    "Compensator",
+    "CompensationResult",
+    "compensate_file",
+    "trajectory_5hz",
+    "trajectory_multi",
+    "TRAJECTORIES",
+    "table4",
+    "reproduce_table4",
+    "format_table4",
+    "PAPER_TABLE4",
+    "OK",
+    "SAT_LOW",
+    "SAT_HIGH",
+    "NOT_CONVERGED",
+]
+
+#: Per-sample status codes of a compensation.
+OK, SAT_LOW, SAT_HIGH, NOT_CONVERGED = 0, 1, 2, 3
+_STATUS_NAMES = {OK: "ok", SAT_LOW: "saturated at u_min", SAT_HIGH: "saturated at u_max",
+                 NOT_CONVERGED: "not converged"}
+
+#: The paper's amplifier range [V] (Sec. IV-A: 0–120 V).
+DEFAULT_LIMITS = (0.0, 120.0)
+#: Default tolerance on |H(u_k) − H_d,k| [µm] (0.1 pm).
+DEFAULT_TOL = 1e-10
+_MAX_ITER = 100
+_EPS = 2.220446049250313e-16
+
+
+# ---------------------------------------------------------------------------
+# compiled per-step solver
+
+@nb.njit(cache=True)
+def _same_sign(a, b):
+    return (a > 0.0) == (b > 0.0)
+
+
+@nb.njit(cache=True)
+def _brent(core, V, hd, a, fa, b, fb, tol, maxit):
+    """Brent's zeroin on a bracket (fa, fb of opposite signs).
+
+    Stops when |f| ≤ tol or the bracket has shrunk to a few ulps. Returns
+    (x, f(x), contrapoint, f(contrapoint), evaluations).
+    """
+    c, fc = a, fa
+    d = b - a
+    e = d
+    n = 0
+    for _ in range(maxit):
+        if _same_sign(fb, fc):
+            c, fc = a, fa
+            d = b - a
+            e = d
+        if abs(fc) < abs(fb):
+            a, fa = b, fb
+            b, fb = c, fc
+            c, fc = a, fa
+        tol1 = 2.0 * _EPS * abs(b) + 1e-300
+        xm = 0.5 * (c - b)
+        if abs(fb) <= tol or abs(xm) <= tol1:
+            break
+        if abs(e) >= tol1 and abs(fa) > abs(fb):
+            s = fb / fa
+            if a == c:
+                p = 2.0 * xm * s
+                q = 1.0 - s
+            else:
+                q = fa / fc
+                r = fb / fc
+                p = s * (2.0 * xm * q * (q - r) - (b - a) * (r - 1.0))
+                q = (q - 1.0) * (r - 1.0) * (s - 1.0)
+            if p > 0.0:
+                q = -q
+            p = abs(p)
+            if 2.0 * p < min(3.0 * xm * q - abs(tol1 * q), abs(e * q)):
+                e = d
+                d = p / q
+            else:
+                d = xm
+                e = d
+        else:
+            d = xm
+            e = d
+        a, fa = b, fb
+        if abs(d) > tol1:
+            b = b + d
+        else:
+            b = b + (tol1 if xm > 0.0 else -tol1)
+        fb = core(b, False, V) - hd
+        n += 1
+        if not math.isfinite(fb):
+            break
+    return b, fb, c, fc, n
+
+
+@nb.njit(cache=True)
+def _solve(core, V, hd, lo, hi, x0, slope, tol, maxit):
+    """Root u of H(u; history) = hd in [lo, hi] by trial steps (commit=False).
+
+    Returns (u, residual H(u) − hd, status, evaluations, new slope estimate).
+    """
+    x0 = min(max(x0, lo), hi)
+    f0 = core(x0, False, V) - hd
+    n = 1
+    if abs(f0) <= tol:
+        return x0, f0, OK, n, slope
+    bx = x0
+    bf = f0 if math.isfinite(f0) else math.inf
+    if not (math.isfinite(slope) and slope != 0.0):
+        # first step or lost estimate: one-sided difference into the range
+        h = 1e-3 * (hi - lo)
+        xb = x0 + h if x0 + h <= hi else x0 - h
+        fb = core(xb, False, V) - hd
+        n += 1
+        slope = (fb - f0) / (xb - x0)
+    # local secant search from the previous voltage (keeps the solution on
+    # the branch the trajectory is on when the step map is not monotone)
+    a, fa = x0, f0
+    if math.isfinite(f0) and math.isfinite(slope) and slope != 0.0:
+        dx = -f0 / slope
+        for _ in range(12):
+            b = min(max(a + dx, lo), hi)
+            if b == a:
+                break  # pushing against a limit: decided by the fallback
+            fb = core(b, False, V) - hd
+            n += 1
+            if not math.isfinite(fb):
+                break
+            if abs(fb) < abs(bf):
+                bx, bf = b, fb
+            if abs(fb) <= tol:
+                return b, fb, OK, n, (fb - fa) / (b - a)
+            if not _same_sign(fa, fb):
+                x, fx, c, fc, m = _brent(core, V, hd, a, fa, b, fb, tol, maxit)
+                n += m
+                if abs(fx) <= tol:
+                    s = (fx - fc) / (x - c) if x != c else slope
+                    return x, fx, OK, n, s
+                if abs(fx) < abs(bf):
+                    bx, bf = x, fx
+                return bx, bf, NOT_CONVERGED, n, slope
+            if abs(fb) >= abs(fa):
+                break  # no progress: the fallback brackets the whole range
+            dx = -fb * (b - a) / (fb - fa)
+            slope = (fb - fa) / (b - a)
+            a, fa = b, fb
+    # fallback: the whole voltage range
+    flo = core(lo, False, V) - hd
+    fhi = core(hi, False, V) - hd
+    n += 2
+    if math.isfinite(flo) and math.isfinite(fhi) and not _same_sign(flo, fhi):
+        if math.isfinite(f0) and lo < x0 < hi:
+            if _same_sign(f0, flo):
+                a, fa, b, fb = x0, f0, hi, fhi
+            else:
+                a, fa, b, fb = lo, flo, x0, f0
+        else:
+            a, fa, b, fb = lo, flo, hi, fhi
+        x, fx, c, fc, m = _brent(core, V, hd, a, fa, b, fb, tol, maxit)
+        n += m
+        if abs(fx) <= tol:
+            s = (fx - fc) / (x - c) if x != c else slope
+            return x, fx, OK, n, s
+        if abs(fx) < abs(bf):
+            bx, bf = x, fx
+        return bx, bf, NOT_CONVERGED, n, slope
+    # no sign change over [lo, hi]: the target is out of reach
+    alo = abs(flo) if math.isfinite(flo) else math.inf
+    ahi = abs(fhi) if math.isfinite(fhi) else math.inf
+    if alo <= ahi and alo <= abs(bf):
+        return lo, flo, SAT_LOW, n, slope
+    if ahi < alo and ahi <= abs(bf):
+        return hi, fhi, SAT_HIGH, n, slope
+    return bx, bf, NOT_CONVERGED, n, slope
+
+
+@nb.njit(cache=True)
+def _explicit(S, hd, lo, hi, uprev, ku, kh):
+    """Eq. (16)/(21) with G from the previous step (state S[2] = ħ_(k−1) or h_(k−1))."""
+    g = 0.0
+    for i in range(ku.shape[0] - 1, 0, -1):
+        g = (g + ku[i]) * uprev
+    g *= uprev  # Σ_{i≥2} ku_i u^i
+    u = (hd - kh * S[2] - g) / ku[0]
+    if not math.isfinite(u):
+        return uprev, NOT_CONVERGED
+    if u < lo:
+        return lo, SAT_LOW
+    if u > hi:
+        return hi, SAT_HIGH
+    return u, OK
+
+
+@nb.njit(cache=True)
+def _one(core, V, S, hd, lo, hi, tol, maxit, explicit, ku, kh, ctl):
+    """Voltage for one sample (not committed). ctl = [u_(k−1), slope]."""
+    if explicit:
+        u, st = _explicit(S, hd, lo, hi, ctl[0], ku, kh)
+        return u, st, 0
+    u, f, st, n, s = _solve(core, V, hd, lo, hi, ctl[0], ctl[1], tol, maxit)
+    ctl[1] = s
+    return u, st, n
+
+
+@nb.njit(cache=True, inline="always")
+def _run_on(views, core, hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh, u, y, status, nfev):
+    """Batch compensation from rest (the model's state starts at rest)."""
+    S = np.zeros(ssize)
+    V = views(P, S)
+    ctl = np.array([min(max(0.0, lo), hi), math.nan])
+    for k in range(hd.shape[0]):
+        uk, st, n = _one(core, V, S, hd[k], lo, hi, tol, maxit, explicit, ku, kh, ctl)
+        y[k] = core(uk, True, V)
+        u[k] = uk
+        status[k] = st
+        nfev[k] = n
+        ctl[0] = uk
+
+
+@nb.njit(cache=True, inline="always")
+def _step_on(views, core, hd, P, S, lo, hi, tol, maxit, explicit, ku, kh, ctl, out, commit):
+    """Per-step body on the blocks of a model stepper: out = [u, status, nfev, y]."""
+    V = views(P, S)
+    uk, st, n = _one(core, V, S, hd, lo, hi, tol, maxit, explicit, ku, kh, ctl)
+    out[0] = uk
+    out[1] = st
+    out[2] = n
+    if commit:
+        out[3] = core(uk, True, V)
+        ctl[0] = uk
+
+
+# One entry point per kernel pair, batch and per step: the kernels are
+# referenced as globals, not passed from Python (numba would type two
+# dispatcher objects on every per-step call, ~60 µs, and its cache index
+# cannot always pickle dispatcher types).
+#
+# Caveat of numba's cache=True: the cache of these functions is keyed on this
+# file only; after an edit of hysteresis.py or fractional.py delete
+# fonbw/__pycache__/compensate.* (or touch this file) or stale kernels run.
+@nb.njit(cache=True)
+def _run_fonbw(hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh, u, y, status, nfev):
+    _run_on(_hy.fonbw_views, _hy.fonbw_core, hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh,
+            u, y, status, nfev)
+
+
+@nb.njit(cache=True)
+def _run_cbw(hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh, u, y, status, nfev):
+    _run_on(_hy.plain_views, _hy.cbw_core, hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh,
+            u, y, status, nfev)
+
+
+@nb.njit(cache=True)
+def _run_zhu(hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh, u, y, status, nfev):
+    _run_on(_hy.plain_views, _hy.zhu_core, hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh,
+            u, y, status, nfev)
+
+
+@nb.njit(cache=True)
+def _step_fonbw(hd, P, S, lo, hi, tol, maxit, explicit, ku, kh, ctl, out, commit):
+    _step_on(_hy.fonbw_views, _hy.fonbw_core, hd, P, S, lo, hi, tol, maxit, explicit, ku, kh,
+             ctl, out, commit)
+
+
+@nb.njit(cache=True)
+def _step_cbw(hd, P, S, lo, hi, tol, maxit, explicit, ku, kh, ctl, out, commit):
+    _step_on(_hy.plain_views, _hy.cbw_core, hd, P, S, lo, hi, tol, maxit, explicit, ku, kh,
+             ctl, out, commit)
+
+
+@nb.njit(cache=True)
+def _step_zhu(hd, P, S, lo, hi, tol, maxit, explicit, ku, kh, ctl, out, commit):
+    _step_on(_hy.plain_views, _hy.zhu_core, hd, P, S, lo, hi, tol, maxit, explicit, ku, kh,
+             ctl, out, commit)
+
+
+def _entries(model):
+    """(batch, per-step) compiled entry points for the model's kernels."""
+    if isinstance(model, _hy.FONBW):
+        return _run_fonbw, _step_fonbw
+    if isinstance(model, _hy.CBW):
+        return _run_cbw, _step_cbw
+    return _run_zhu, _step_zhu
+
+
+# ---------------------------------------------------------------------------
+# validation
+
+def _check_model(model):
+    if not isinstance(model, (_hy.FONBW, _hy.CBW, _hy.Zhu2016)):
+        raise ValueError(f"cannot compensate a {type(model).__name__}: expected a fonbw model "
+                         "(FONBW, NBW, CBW or Zhu2016)")
+
+
+def _limits(limits):
+    try:
+        lo, hi = (float(v) for v in limits)
+    except (TypeError, ValueError):
+        raise ValueError(f"limits must be a pair (u_min, u_max) of volts, got {limits!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        raise ValueError(f"limits must be finite with u_min < u_max [V], got {limits!r}")
+    return lo, hi
+
+
+def _tol(tol):
+    tol = float(tol)
+    if not (math.isfinite(tol) and tol > 0):
+        raise ValueError(f"tol must be a positive number of µm, got {tol!r}")
+    return tol
+
+
+def _explicit_coeffs(model, explicit):
+    """(ku, kh) of the explicit form u = (H_d − kh·x_(k−1) − Σ_(i≥2) ku_i u^i)/ku_1."""
+    if isinstance(model, _hy.FONBW):
+        ku, kh = np.asarray(model.ku, dtype=float), float(model.kh)
+    elif isinstance(model, _hy.CBW):
+        ku, kh = np.array([model.ka]), float(model.kb * model.D)
+    else:
+        if explicit:
+            raise ValueError("explicit=True is not defined for Zhu2016: eq. (22) divides by "
+                             "(k1/τ)e^(−t/τ), which vanishes after a few τ; use the implicit "
+                             "per-step inversion (explicit=False)")
+        return np.ones(1), 0.0
+    if explicit and ku[0] == 0.0:
+        raise ValueError("explicit=True needs k_u1 ≠ 0 (eq. 16 divides by it)")
+    return np.ascontiguousarray(ku), kh
+
+
+def _hd(Hd):
+    Hd = np.ascontiguousarray(Hd, dtype=float)
+    if Hd.ndim != 1:
+        raise ValueError(f"desired displacement Hd must be a 1-D array, got shape {Hd.shape}")
+    if not np.all(np.isfinite(Hd)):
+        k = int(np.flatnonzero(~np.isfinite(Hd))[0])
+        raise ValueError(f"desired displacement Hd is not finite at sample {k}")
+    return Hd
+
+
+# ---------------------------------------------------------------------------
+# public API
+
+@dataclasses.dataclass
+class CompensationResult:
+    """Outcome of :func:`compensate`. ``np.asarray(result)`` is the voltage u.
+
+    Attributes
+    ----------
+    u : ndarray
+        Compensating voltage [V], one per sample of H_d.
+    y_model : ndarray
+        The model's output for u [µm] (what the compensator expects the
+        actuator to do); equals H_d to ``tol`` where ``status == OK``.
+    Hd : ndarray
+        Desired displacement [µm].
+    dt : float
+        Step [s].
+    status : ndarray of int8
+        Per sample: ``OK`` (0), ``SAT_LOW`` (1, u = u_min), ``SAT_HIGH``
+        (2, u = u_max), ``NOT_CONVERGED`` (3).
+    nfev : ndarray of int
+        Model step evaluations per sample (0 for the explicit variant).
+    limits : tuple
+        (u_min, u_max) [V].
+    tol : float
+        Solver tolerance on |y_model − H_d| [µm].
+    explicit : bool
+        Whether the one-step-delayed variant was used.
+    """
+
+    u: np.ndarray
+    y_model: np.ndarray
+    Hd: np.ndarray
+    dt: float
+    status: np.ndarray
+    nfev: np.ndarray
+    limits: tuple
+    tol: float
+    explicit: bool = False
+
+    def __array__(self, dtype=None, copy=None):
+        return self.u if dtype is None else self.u.astype(dtype)
+
+    def __len__(self):
+        return len(self.u)
+
+    @property
+    def converged(self) -> np.ndarray:
+        """True where the implicit equation was solved to ``tol`` (no saturation)."""
+        return self.status == OK
+
+    @property
+    def saturated(self) -> np.ndarray:
+        """True where u sits on a limit because H_d was out of reach."""
+        return (self.status == SAT_LOW) | (self.status == SAT_HIGH)
+
+    @property
+    def saturated_samples(self) -> np.ndarray:
+        """Indices of the saturated samples."""
+        return np.flatnonzero(self.saturated)
+
+    @property
+    def unconverged_samples(self) -> np.ndarray:
+        """Indices of the samples where no root was found (not saturation)."""
+        return np.flatnonzero(self.status == NOT_CONVERGED)
+
+    @property
+    def residual(self) -> np.ndarray:
+        """y_model − H_d [µm]."""
+        return self.y_model - self.Hd
+
+    @property
+    def ok(self) -> bool:
+        """Every sample solved, none saturated."""
+        return bool(np.all(self.status == OK))
+
+    def summary(self) -> str:
+        """One line: samples, saturation (with the first sample and time), failures."""
+        n = len(self.u)
+        parts = [f"{n} samples"]
+        for code in (SAT_LOW, SAT_HIGH, NOT_CONVERGED):
+            idx = np.flatnonzero(self.status == code)
+            if idx.size:
+                parts.append(f"{idx.size} {_STATUS_NAMES[code]} (first at sample {idx[0]}, "
+                             f"t = {idx[0] * self.dt:.6g} s)")
+        if len(parts) == 1:
+            parts.append("all solved" if not self.explicit else "none saturated")
+        res = np.abs(self.residual)
+        parts.append(f"max |model − Hd| = {res.max() if n else 0.0:.3g} µm")
+        return "; ".join(parts)
+
+
+def compensate(model, Hd, dt, *, limits=DEFAULT_LIMITS, explicit=False, tol=DEFAULT_TOL,
+               max_iter=_MAX_ITER) -> CompensationResult:
+    """Feedforward voltage for a desired displacement, from rest (eqs. 16–17, 21, 22).
+
+    Parameters
+    ----------
+    model : FONBW, NBW, CBW or Zhu2016
+        The identified model; its memory engine is used as is.
+    Hd : array_like
+        Desired displacement H_d [µm], sampled at dt.
+    dt : float
+        Step [s].
+    limits : (float, float)
+        Voltage range (u_min, u_max) [V]; default the paper's 0–120 V.
+    explicit : bool
+        One-step-delayed variant (G from the previous step) instead of the
+        per-step implicit solve (module docstring).
+    tol : float
+        Tolerance on |H(u_k) − H_d,k| [µm] of the implicit solve.
+    max_iter : int
+        Iteration cap of each bracketed solve.
+
+    Returns
+    -------
+    CompensationResult
+        u [V], the model output, and per-sample status (saturation and
+        convergence).
+    """
+    _check_model(model)
+    Hd = _hd(Hd)
+    dt = _hy._dt(dt)
+    lo, hi = _limits(limits)
+    tol = _tol(tol)
+    ku, kh = _explicit_coeffs(model, explicit)
+    n = len(Hd)
+    P, ss = model._pack(dt, n_steps=max(n, 1))
+    u = np.empty(n)
+    y = np.empty(n)
+    status = np.empty(n, dtype=np.int8)
+    nfev = np.empty(n, dtype=np.int64)
+    if n:
+        _entries(model)[0](Hd, P, ss, lo, hi, tol, int(max_iter), bool(explicit), ku, kh,
+             u, y, status, nfev)
+    return CompensationResult(u=u, y_model=y, Hd=Hd, dt=dt, status=status, nfev=nfev,
+                              limits=(lo, hi), tol=tol, explicit=bool(explicit))
+
+
+class Compensator:
+    """The compensator one sample at a time: ``u_k = c.step(Hd_k)``.
+
+    Gives the numbers of :func:`compensate` bit for bit (same compiled solver
+    on the blocks of the model's own stepper). ``get_state``/``set_state``
+    copy everything (model memory, previous voltage, slope estimate,
+    counters) as one float64 array, for FMU rollback.
+
+    Attributes
+    ----------
+    status : int
+        Status of the last step (``OK``, ``SAT_LOW``, ``SAT_HIGH``,
+        ``NOT_CONVERGED``).
+    y_model : float
+        Model output for the last voltage [µm].
+    n_saturated, n_not_converged, steps : int
+        Counts since the last reset.
+    """
+
+    _NCTL = 7  # steps, u_prev, slope, n_sat, n_fail, status, y_model
+
+    def __init__(self, model, dt, *, limits=DEFAULT_LIMITS, explicit=False, tol=DEFAULT_TOL,
+                 max_iter=_MAX_ITER):
+        _check_model(model)
+        self.model = model
+        self.dt = _hy._dt(dt)
+        self.limits = _limits(limits)
+        self.tol = _tol(tol)
+        self.max_iter = int(max_iter)
+        self.explicit = bool(explicit)
+        self._ku, self._kh = _explicit_coeffs(model, explicit)
+        self._entry = _entries(model)[1]
+        self._out = np.zeros(4)
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to rest at t = 0."""
+        # The model's own stepper holds the packed blocks P, S (and grows the
+        # exact engine's window); the compiled step solves on them.
+        self._st = self.model.stepper(self.dt)
+        self._growable = any(op.growable for op in getattr(self._st, "ops", ()))
+        self._ctl = np.array([min(max(0.0, self.limits[0]), self.limits[1]), math.nan])
+        self.steps = 0
+        self.n_saturated = 0
+        self.n_not_converged = 0
+        self.status = OK
+        self.y_model = 0.0
+
+    def step(self, y_ref: float) -> float:
+        """Voltage u_k [V] for the desired displacement y_ref = H_d,k [µm]."""
+        hd = float(y_ref)
+        if not math.isfinite(hd):
+            raise ValueError(f"desired displacement at step {self.steps} is not finite: {y_ref!r}")
+        st, out = self._st, self._out
+        lo, hi = self.limits
+        # solve and commit in one compiled call, except when the exact
+        # engine's window may have to grow first: the model stepper commits then
+        self._entry(hd, st.P, st.S, lo, hi, self.tol, self.max_iter, self.explicit, self._ku,
+                    self._kh, self._ctl, out, not self._growable)
+        u = float(out[0])
+        if self._growable:
+            self.y_model = st.step(u)
+            self._ctl[0] = u
+        else:
+            self.y_model = float(out[3])
+            st._steps += 1  # keep the stepper's own count true (its state is ours)
+        self.status = int(out[1])
+        self.steps += 1
+        if self.status in (SAT_LOW, SAT_HIGH):
+            self.n_saturated += 1
+        elif self.status == NOT_CONVERGED:
+            self.n_not_converged += 1
+        return u
+
+    def get_state(self) -> np.ndarray:
+        head = [float(self.steps), self._ctl[0], self._ctl[1], float(self.n_saturated),
+                float(self.n_not_converged), float(self.status), float(self.y_model)]
+        return np.concatenate([head, self._st.get_state()])
+
+    def set_state(self, state) -> None:
+        s = np.asarray(state, dtype=float)
+        if s.ndim != 1 or len(s) <= self._NCTL:
+            raise ValueError("state must be a 1-D array from Compensator.get_state()")
+        self._st.set_state(s[self._NCTL:])
+        self.steps = int(s[0])
+        self._ctl = np.array([s[1], s[2]])
+        self.n_saturated, self.n_not_converged, self.status = int(s[3]), int(s[4]), int(s[5])
+        self.y_model = float(s[6])
+
+
+def compensator(model, dt, *, limits=DEFAULT_LIMITS, explicit=False, tol=DEFAULT_TOL,
+                max_iter=_MAX_ITER) -> Compensator:
+    """Per-sample compensator (for FMUs and loops); see :class:`Compensator`."""
+    return Compensator(model, dt, limits=limits, explicit=explicit, tol=tol, max_iter=max_iter)
+
+
+def compensate_file(model_path, traj_path, out_path, *, limits=DEFAULT_LIMITS, explicit=False,
+                    tol=DEFAULT_TOL) -> CompensationResult:
+    """``fonbw compensate``: model JSON + trajectory CSV (t, Hd) -> CSV (t, u, Hd, y_model, status).
+
+    Errors in the inputs raise ValueError (``fonbw.io.DataError`` for the
+    CSV) naming the file.
+    """
+    from .io import read_record, write_csv
+
+    model = _hy.load_model(model_path)
+    rec = read_record(traj_path, need=("Hd",))
+    res = compensate(model, rec.hd, rec.dt, limits=limits, explicit=explicit, tol=tol)
+    write_csv(out_path, {"t": rec.t, "u": res.u, "Hd": res.Hd, "y_model": res.y_model,
+                         "status": res.status.astype(float)})
+    return res
+
+
+# ---------------------------------------------------------------------------
+# the paper's Table 4 on the virtual bench
+
+def trajectory_5hz(t):
+    """Single-frequency trajectory of Sec. IV-D: H_d = 5 − 5 cos(10πt) µm."""
+    t = np.asarray(t, dtype=float)
+    return 5.0 - 5.0 * np.cos(10.0 * np.pi * t)
+
+
+def trajectory_multi(t):
+    """Multi-frequency trajectory of Sec. IV-D:
+    H_d = 4 − cos 2πt − cos 6πt − cos 10πt − cos 20πt µm."""
+    t = np.asarray(t, dtype=float)
+    return (4.0 - np.cos(2 * np.pi * t) - np.cos(6 * np.pi * t) - np.cos(10 * np.pi * t)
+            - np.cos(20 * np.pi * t))
+
+
+#: The two desired trajectories of Table 4, by the paper's names.
+TRAJECTORIES = {"5-Hz": trajectory_5hz, "Multi-freq.": trajectory_multi}
+
+#: Table 4 of the paper: (compensator, trajectory, RMS error [µm], RMS input [V]).
+PAPER_TABLE4 = (
+    ("FONBW", "5-Hz", 0.22, 41.09), ("FONBW", "Multi-freq.", 0.16, 24.54),
+    ("CBW", "5-Hz", 0.33, 43.15), ("CBW", "Multi-freq.", 0.36, 29.32),
+    ("Zhu", "5-Hz", 0.27, 44.66), ("Zhu", "Multi-freq.", 0.26, 30.45),
+)
+
+
+def _rms(x):
+    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else math.nan
+
+
+def table4(bench, models, dt=None, out_dir=None, *, T=2.0, limits=DEFAULT_LIMITS,
+           explicit=False, ideal=True, trajectories=None) -> list[dict]:
+    """Reproduce Table 4: feedforward tracking of the two trajectories on a bench.
+
+    Each model's compensator (:func:`compensate`, from rest) turns H_d into a
+    voltage, the bench runs it (from rest, measured output: sensor, noise and
+    ADC included), and the error is measured − desired over the whole record.
+
+    Parameters
+    ----------
+    bench : fonbw.bench.Bench
+        The plant. Anything with ``run(u) -> y`` [µm] and ``dt`` [s] works.
+    models : mapping of str to model
+        Compensator name (e.g. "FONBW", "CBW", "Zhu") -> identified model.
+    dt : float, optional
+        Step [s]; must equal ``bench.dt`` (default).
+    out_dir : path, optional
+        Where to write ``table4.csv`` and one PNG per trajectory (tracking
+        and error of every compensator).
+    T : float
+        Duration of each trajectory [s].
+    limits, explicit
+        Passed to :func:`compensate`.
+    ideal : bool
+        Also run each compensator on its own model as the plant (rows with
+        ``plant="model"``): tracks to the solver tolerance unless saturated.
+    trajectories : mapping, optional
+        name -> function of t [s] giving H_d [µm]; default :data:`TRAJECTORIES`.
+
+    Returns
+    -------
+    list of dict
+        One row per (compensator, trajectory[, plant]) with ``compensator``,
+        ``trajectory``, ``plant`` ("bench" or "model"), ``rms_error`` [µm],
+        ``max_error`` [µm], ``rms_input`` [V], ``saturated`` and
+        ``not_converged`` (sample counts), ``samples``.
+    """
+    bdt = float(getattr(bench, "dt"))
+    dt = bdt if dt is None else _hy._dt(dt)
+    if abs(dt - bdt) > 1e-12 * bdt:
+        raise ValueError(f"dt = {dt!r} s differs from the bench's sampling step {bdt!r} s")
+    if not models:
+        raise ValueError("models must name at least one model to compensate with")
+    for name, m in models.items():
+        _check_model(m)
+    T = float(T)
+    if not (math.isfinite(T) and T > 0):
+        raise ValueError(f"T must be a positive duration [s], got {T!r}")
+    trajs = dict(TRAJECTORIES if trajectories is None else trajectories)
+    t = np.arange(int(round(T / dt))) * dt
+    rows, traces = [], {}
+    for tname, fn in trajs.items():
+        Hd = np.asarray(fn(t), dtype=float)
+        for mname, m in models.items():
+            res = compensate(m, Hd, dt, limits=limits, explicit=explicit)
+            y = np.asarray(bench.run(res.u), dtype=float)
+            traces[tname, mname] = (Hd, y)
+            plants = [("bench", y)] + ([("model", res.y_model)] if ideal else [])
+            for pname, yp in plants:
+                e = yp - Hd
+                rows.append({"compensator": mname, "trajectory": tname, "plant": pname,
+                             "rms_error": _rms(e), "max_error": float(np.max(np.abs(e))),
+                             "rms_input": _rms(res.u),
+                             "saturated": int(np.count_nonzero(res.saturated)),
+                             "not_converged": int(res.unconverged_samples.size),
+                             "samples": int(len(Hd))})
+    if out_dir is not None:
+        _write_table4(out_dir, rows, traces, t, list(trajs), list(models))
+    return rows
+
+
+def _write_table4(out_dir, rows, traces, t, tnames, mnames):
+    import csv
+
+    from .io import atomic_open
+
+    os.makedirs(out_dir, exist_ok=True)
+    keys = list(rows[0])
+    with atomic_open(os.path.join(out_dir, "table4.csv"), "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=keys)
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in r.items()})
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    for tname in tnames:
+        fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+        Hd = traces[tname, mnames[0]][0]
+        a1.plot(t, Hd, "k--", lw=1.2, label="desired")
+        for m in mnames:
+            y = traces[tname, m][1]
+            a1.plot(t, y, lw=0.8, label=f"{m}-based")
+            a2.plot(t, y - Hd, lw=0.8, label=f"{m}: RMS {_rms(y - Hd):.3f} µm")
+        a1.set_ylabel("displacement [µm]")
+        a1.set_title(f"Feedforward compensation on the bench, {tname} trajectory")
+        a1.legend(loc="upper right", fontsize=8)
+        a2.set_ylabel("tracking error [µm]")
+        a2.set_xlabel("t [s]")
+        a2.legend(loc="upper right", fontsize=8)
+        fig.tight_layout()
+        slug = "".join(ch if ch.isalnum() else "_" for ch in tname.lower()).strip("_")
+        path = os.path.join(out_dir, f"table4_{slug}.png")
+        with atomic_open(path, "wb") as fh:
+            fig.savefig(fh, format="png", dpi=110)
+        plt.close(fig)
+
+
+def format_table4(rows, paper=True) -> str:
+    """Plain-text Table 4 (bench rows; with the paper's numbers beside them)."""
+    ref = {(c, tr): (e, u) for c, tr, e, u in PAPER_TABLE4}
+    lines = [f"{'compensator':<12} {'trajectory':<12} {'RMS error':>10} {'RMS input':>10} "
+             f"{'saturated':>9}" + ("   paper: error, input" if paper else "")]
+    for r in rows:
+        if r["plant"] != "bench":
+            continue
+        line = (f"{r['compensator']:<12} {r['trajectory']:<12} {r['rms_error']:>7.3f} µm "
+                f"{r['rms_input']:>8.2f} V {r['saturated']:>9d}")
+        if paper and (r["compensator"], r["trajectory"]) in ref:
+            e, u = ref[r["compensator"], r["trajectory"]]
+            line += f"   {e:.2f} µm, {u:.2f} V"
+        lines.append(line)
+    return "\n".join(lines)
+
+
+def reproduce_table4(out_dir=None, *, seed=0, max_evals=3000, T=2.0, models=None,
+                     workers=None, progress=False) -> list[dict]:
+    """Table 4 end to end on the default virtual bench.
+
+    Identifies FONBW, CBW and the Zhu model on the bench's eq. (19) record
+    (20 s at 10 kHz, :func:`fonbw.identify`, same seed for all) unless
+    ``models`` is given, then runs :func:`table4`. With ``out_dir`` also
+    writes the identified models as ``model_<name>.json``.
+    """
+    from .bench import Bench, eq19_input
+
+    bench = Bench(seed=seed)
+    if models is None:
+        from .identify import identify
+
+        rec = bench.record(eq19_input(bench.fs)[1], "eq19")
+        models = {}
+        for name, kind in (("FONBW", "fonbw"), ("CBW", "cbw"), ("Zhu", "zhu")):
+            models[name] = identify(rec, kind, seed=seed, max_evals=max_evals, workers=workers,
+                                    progress=progress).model
+    if out_dir is not None:
+        os.makedirs(out_dir, exist_ok=True)
+        for name, m in models.items():
+            m.save(os.path.join(out_dir, f"model_{name.lower()}.json"))
+    return table4(bench, models, bench.dt, out_dir, T=T)
+
+
+# `import fonbw.compensate` (or any import of this module) binds the module as
+# the package attribute `fonbw.compensate`, shadowing the function of the same
+# name that fonbw's lazy __getattr__ hands out. Calling the module calls the
+# function, so `fonbw.compensate(model, Hd, dt)` works whichever is bound.
+class _CallableModule(types.ModuleType):
+    def __call__(self, *args, **kwargs):
+        return compensate(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule

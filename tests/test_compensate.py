@@ -1,0 +1,229 @@
+"""Tests of fonbw.compensate (issue 4): the per-step inverse of eqs. (16)-(17), (21), (22).
+
+References are independent of the compiled solver: the models' own
+``simulate`` (model ∘ compensator = identity), a per-step root find written
+here with scipy's brentq on the model stepper's ``peek``, and the closed forms
+of the explicit (one-step-delayed) eqs. (16) and (21) evaluated with the
+hysteretic state returned by ``simulate``.
+"""
+import math
+
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+
+import fonbw
+from fonbw import compensate as C
+from fonbw.io import read_record, write_csv
+
+DT = 1e-4          # s, the paper's 10 kHz
+T = 0.4            # s: two periods of the 5-Hz trajectory
+t = np.arange(int(round(T / DT))) * DT
+TRAJ = {"5hz": C.trajectory_5hz(t), "multi": C.trajectory_multi(t)}
+
+WN, ZETA = 2 * np.pi * 1500.0, 0.7
+
+
+def zhu(delta=0.0):
+    return fonbw.Zhu2016(m0=1 / WN**2, c0=2 * ZETA / WN, k0=1.0, k1=0.1, x0=0.0, tau=2e-5,
+                         A=0.17, beta=0.001, gamma=0.0005, delta=delta, n=1.0)
+
+
+FONBW_P = dict(ku=[0.15, -1e-4, -5e-8], kh=2.0, rho=0.02, sigma=0.8, n=1.5, lam1=0.95, lam2=0.85)
+MODELS = {
+    "fonbw_fast": lambda: fonbw.FONBW(**FONBW_P, memory="fast"),
+    "fonbw_exact": lambda: fonbw.FONBW(**FONBW_P, memory="exact"),
+    "fonbw_oustaloup": lambda: fonbw.FONBW(**FONBW_P, memory="oustaloup"),
+    "nbw": lambda: fonbw.NBW(ku=[0.15, 1e-4], kh=2.0, rho=0.02, sigma=0.8, n=1.5),
+    "cbw": lambda: fonbw.CBW(ka=0.15, kb=0.05, D=50.0, A=1.0, beta=0.6, gamma=0.4, n=1.0),
+    "zhu": lambda: zhu(),
+}
+
+
+def _rel(a, b):
+    return float(np.max(np.abs(a - b)) / np.max(np.abs(b)))
+
+
+@pytest.mark.parametrize("traj", list(TRAJ))
+@pytest.mark.parametrize("name", list(MODELS))
+def test_model_after_compensator_is_identity(name, traj):
+    m = MODELS[name]()
+    Hd = TRAJ[traj]
+    res = C.compensate(m, Hd, DT)
+    assert res.ok, res.summary()
+    assert np.all(res.nfev >= 1) and res.nfev.max() <= 60
+    # independent path: the model's own batch simulation of the voltage
+    y = m.simulate(res.u, DT)
+    assert _rel(y, Hd) <= 1e-9
+    assert np.array_equal(y, res.y_model)
+    assert np.all((res.u >= 0.0) & (res.u <= 120.0))
+    assert np.array_equal(np.asarray(res, dtype=float), res.u)
+
+
+@pytest.mark.parametrize("name", ["fonbw_fast", "cbw", "zhu"])
+def test_root_equals_scipy_brentq_on_the_stepper(name):
+    # second implementation: per step, brentq on peek() over the full range
+    m = MODELS[name]()
+    Hd = TRAJ["multi"][:600]
+    res = C.compensate(m, Hd, DT)
+    s = m.stepper(DT)
+    u_ref = np.empty_like(Hd)
+    for k, h in enumerate(Hd):
+        u_ref[k] = brentq(lambda x: s.peek(x) - h, 0.0, 120.0, xtol=1e-14, rtol=1e-15)
+        s.step(u_ref[k])
+    assert np.max(np.abs(res.u - u_ref)) <= 1e-7
+
+
+@pytest.mark.parametrize("name", ["fonbw_fast", "fonbw_exact", "cbw", "zhu"])
+def test_stepper_equals_batch_bit_for_bit(name):
+    m = MODELS[name]()
+    Hd = TRAJ["5hz"][:1500] * (1.8 if name == "cbw" else 1.0)  # cbw: some saturation too
+    res = C.compensate(m, Hd, DT)
+    c = C.compensator(m, DT)
+    u = np.array([c.step(h) for h in Hd])  # exact engine: the window grows past 1024
+    assert np.array_equal(u, res.u)
+    assert c.n_saturated == np.count_nonzero(res.saturated)
+    assert c.steps == len(Hd)
+
+
+def test_state_rollback_replays_bit_for_bit():
+    m = MODELS["fonbw_fast"]()
+    Hd = TRAJ["multi"]
+    c = C.compensator(m, DT)
+    for h in Hd[:500]:
+        c.step(h)
+    state = c.get_state()
+    a = [c.step(h) for h in Hd[500:800]]
+    c.set_state(state)
+    b = [c.step(h) for h in Hd[500:800]]
+    assert a == b
+    c2 = C.compensator(m, DT)  # a new instance takes the state too
+    c2.set_state(state)
+    assert [c2.step(h) for h in Hd[500:800]] == a
+    c.reset()
+    assert c.steps == 0 and [c.step(h) for h in Hd[:5]] == list(C.compensate(m, Hd[:5], DT).u)
+    with pytest.raises(ValueError, match="state"):
+        c.set_state(np.zeros(3))
+
+
+def test_saturation_is_honoured_and_reported():
+    m = MODELS["nbw"]()
+    Hd = 3.0 * TRAJ["5hz"]  # 30 µm peak: beyond 120 V
+    lo, hi = 0.0, 100.0
+    res = C.compensate(m, Hd, DT, limits=(lo, hi))
+    assert np.all((res.u >= lo) & (res.u <= hi))
+    sat = res.saturated_samples
+    assert sat.size > 0 and np.all(res.u[res.status == C.SAT_HIGH] == hi)
+    # out of reach indeed: even u_max falls short there
+    assert np.all(res.y_model[res.status == C.SAT_HIGH] < Hd[res.status == C.SAT_HIGH])
+    # everything else is solved
+    ok = res.status == C.OK
+    assert np.all(np.abs(res.residual[ok]) <= res.tol)
+    assert np.array_equal(np.flatnonzero(~ok), sat)
+    assert f"{sat.size} saturated at u_max" in res.summary()
+    # negative targets: the lower limit
+    Hd2 = -TRAJ["5hz"]
+    res2 = C.compensate(m, Hd2, DT, limits=(lo, hi))
+    assert np.all(res2.u == lo)
+    assert np.array_equal(res2.status == C.SAT_LOW, Hd2 < -res2.tol)
+
+
+def test_unconverged_samples_are_reported():
+    # δ u sgn(u̇) of eq. (20) makes the step map jump at u_k = u_(k−1): a target
+    # inside the jump has no root; it must be reported, never passed off as solved
+    m = zhu(delta=0.05)
+    res = C.compensate(m, TRAJ["multi"], DT)
+    bad = res.unconverged_samples
+    assert bad.size > 0
+    assert np.all(np.abs(res.residual[bad]) > res.tol)
+    good = res.status == C.OK
+    assert np.all(np.abs(res.residual[good]) <= res.tol)
+    assert "not converged" in res.summary()
+    # the residual left is the jump, small against the stroke
+    assert np.max(np.abs(res.residual)) < 1e-3
+
+
+def test_explicit_variant_is_eq16_and_eq21_in_closed_form():
+    Hd = TRAJ["5hz"][:2000]
+    m = MODELS["fonbw_fast"]()
+    res = C.compensate(m, Hd, DT, explicit=True)
+    _, hb = m.simulate(res.u, DT, return_state=True)
+    k1, k2, k3 = m.ku
+    up = np.concatenate([[0.0], res.u[:-1]])
+    hp = np.concatenate([[0.0], hb[:-1]])
+    u_ref = np.clip((Hd - m.kh * hp - k2 * up**2 - k3 * up**3) / k1, 0.0, 120.0)
+    assert np.max(np.abs(res.u - u_ref)) <= 1e-9
+    cb = MODELS["cbw"]()
+    res = C.compensate(cb, Hd, DT, explicit=True)
+    _, h = cb.simulate(res.u, DT, return_state=True)
+    hp = np.concatenate([[0.0], h[:-1]])
+    u_ref = np.clip((Hd - cb.kb * cb.D * hp) / cb.ka, 0.0, 120.0)
+    assert np.max(np.abs(res.u - u_ref)) <= 1e-9
+    # the delayed form does not invert the model: the implicit one does
+    assert _rel(cb.simulate(res.u, DT), Hd) > 1e-4
+    c = C.compensator(cb, DT, explicit=True)
+    assert np.array_equal([c.step(h) for h in Hd], res.u)
+
+
+def test_refusals():
+    m = MODELS["nbw"]()
+    with pytest.raises(ValueError, match="limits"):
+        C.compensate(m, TRAJ["5hz"], DT, limits=(120.0, 0.0))
+    with pytest.raises(ValueError, match="not finite at sample 3"):
+        C.compensate(m, [0.0, 1.0, 2.0, math.nan], DT)
+    with pytest.raises(ValueError, match="1-D"):
+        C.compensate(m, np.zeros((2, 3)), DT)
+    with pytest.raises(ValueError, match="dt"):
+        C.compensate(m, TRAJ["5hz"], 0.0)
+    with pytest.raises(ValueError, match="tol"):
+        C.compensate(m, TRAJ["5hz"], DT, tol=-1.0)
+    with pytest.raises(ValueError, match="Zhu2016"):
+        C.compensate(zhu(), TRAJ["5hz"], DT, explicit=True)
+    with pytest.raises(ValueError, match="cannot compensate"):
+        C.compensate(object(), TRAJ["5hz"], DT)
+    with pytest.raises(ValueError, match="not finite"):
+        C.compensator(m, DT).step(math.inf)
+    assert len(C.compensate(m, [], DT).u) == 0
+
+
+def test_public_names_and_file_helper(tmp_path):
+    m = MODELS["fonbw_fast"]()
+    assert fonbw.compensator is C.compensator
+    # the package attribute may be the module (after `import fonbw.compensate`): callable alike
+    assert np.array_equal(fonbw.compensate(m, TRAJ["5hz"][:50], DT).u,
+                          C.compensate(m, TRAJ["5hz"][:50], DT).u)
+    mp, tp, op = tmp_path / "m.json", tmp_path / "traj.csv", tmp_path / "u.csv"
+    m.save(mp)
+    write_csv(tp, {"t": t[:800], "Hd": TRAJ["multi"][:800]})
+    res = C.compensate_file(mp, tp, op)
+    out = read_record(op, need=("u", "Hd"))
+    dt = read_record(tp, need=("Hd",)).dt  # the median step of the file's t column
+    ref = C.compensate(m, TRAJ["multi"][:800], dt)
+    assert np.array_equal(out.u, ref.u) and res.ok and abs(dt - DT) < 1e-15
+    with pytest.raises(ValueError, match="Hd"):
+        C.compensate_file(mp, op.with_name("nope.csv"), op)
+
+
+def test_table4_on_an_ideal_bench_and_the_plots(tmp_path):
+    from fonbw.bench import Bench
+
+    bench = Bench.ideal(seed=0)
+    models = {"NBW": MODELS["nbw"](), "CBW": MODELS["cbw"]()}
+    rows = C.table4(bench, models, out_dir=tmp_path, T=0.2)
+    assert len(rows) == 2 * 2 * 2
+    for r in rows:
+        assert r["samples"] == 2000 and r["saturated"] == 0 and r["not_converged"] == 0
+        if r["plant"] == "model":  # compensator and plant from the same model
+            assert r["rms_error"] <= 1e-9
+        else:  # the bench is not a Bouc-Wen model: a real, finite error
+            assert 1e-3 < r["rms_error"] < 5.0
+        assert 10.0 < r["rms_input"] < 120.0
+    # the RMS input is the voltage of the compensator, independent of the plant
+    u = C.compensate(models["CBW"], C.trajectory_5hz(np.arange(2000) * DT), DT).u
+    row = next(r for r in rows if r["compensator"] == "CBW" and r["trajectory"] == "5-Hz")
+    assert row["rms_input"] == pytest.approx(np.sqrt(np.mean(u**2)), rel=1e-12)
+    for f in ("table4.csv", "table4_5_hz.png", "table4_multi_freq.png"):
+        assert (tmp_path / f).stat().st_size > 0
+    assert "paper" in C.format_table4(rows)
+    with pytest.raises(ValueError, match="differs"):
+        C.table4(bench, models, dt=2 * DT)
