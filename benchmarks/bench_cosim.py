@@ -9,7 +9,9 @@ cache loading, FMU extraction), then the timed run of T seconds of simulated
 time at dt = 1e-4 s.  Printed side by side: wall time of the stepping loop,
 setup (instantiate + initialize; libcosim initializes inside its first step,
 counted here as setup), microseconds per communication step, real-time factor
-(simulated / wall time), the ratio to the reference master, and the RMS
+(simulated / wall time, and simulated / process CPU time of the loop, which
+other jobs on the machine disturb less), the wall-time ratio to the
+reference master, and the RMS
 tracking error (the masters must agree to round-off).  The load average is
 printed too: on the shared 2-core machine other jobs change the absolute
 numbers; the ratios measured side by side are the meaningful part.
@@ -34,7 +36,7 @@ from fonbw.cosim import run_cosim
 master, mode, plant, T, fmu_dir = sys.argv[1], sys.argv[2], sys.argv[3], float(sys.argv[4]), sys.argv[5]
 run_cosim("sine5", mode, master, T=0.01, plant=plant, fmu_dir=fmu_dir)  # warm-up
 r = run_cosim("sine5", mode, master, T=T, plant=plant, fmu_dir=fmu_dir)
-print(json.dumps({k: r[k] for k in ("wall_s", "setup_s", "rtf", "steps", "rms_error", "error")}))
+print(json.dumps({k: r[k] for k in ("wall_s", "cpu_s", "setup_s", "rtf", "steps", "rms_error", "error")}))
 '''
 
 
@@ -63,13 +65,14 @@ def main(argv=None):
                 continue
             rows[m] = json.loads(r.stdout.strip().splitlines()[-1])
         ref = rows.get("reference")
-        print(f"{'master':10s} {'wall [s]':>9s} {'setup [s]':>9s} {'us/step':>8s} {'RTF':>6s} "
-              f"{'x ref':>6s} {'rms_error [um]':>16s}")
+        print(f"{'master':10s} {'wall [s]':>9s} {'cpu [s]':>8s} {'setup [s]':>9s} {'us/step':>8s} "
+              f"{'RTF':>6s} {'RTF cpu':>8s} {'x ref':>6s} {'rms_error [um]':>16s}")
         for m, d in rows.items():
             us = 1e6 * d["wall_s"] / max(d["steps"], 1)
             ratio = d["wall_s"] / ref["wall_s"] if ref else float("nan")
-            print(f"{m:10s} {d['wall_s']:9.2f} {d['setup_s']:9.2f} {us:8.1f} {d['rtf']:6.2f} "
-                  f"{ratio:6.2f} {d['rms_error']:16.12f}" + (f"  ERROR {d['error']}" if d["error"] else ""))
+            rtf_cpu = d["steps"] * 1e-4 / d["cpu_s"] if d["cpu_s"] > 0 else float("inf")
+            print(f"{m:10s} {d['wall_s']:9.2f} {d['cpu_s']:8.2f} {d['setup_s']:9.2f} {us:8.1f} "
+                  f"{d['rtf']:6.2f} {rtf_cpu:8.2f} {ratio:6.2f} {d['rms_error']:16.12f}" + (f"  ERROR {d['error']}" if d["error"] else ""))
         print(f"load average after: {os.getloadavg()[0]:.2f}")
     return 0
 

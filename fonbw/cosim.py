@@ -424,6 +424,7 @@ def _run_reference(w, cfg, n, rest, dt):
             f = (lambda st: lambda u: st.step(u))(st)
         elif b == "comp":
             c = _compensator(cfg["model"], dt)
+            cfg["_comp"] = c  # its saturation counts go into the result
             f = (lambda c: lambda r: c.step(r))(c)
         elif b == "ctrl":
             lc = LoopController(cfg["controller"])
@@ -439,7 +440,7 @@ def _run_reference(w, cfg, n, rest, dt):
     tr = _new_trace(w, len(w.t))
     ins = {b: w.inputs(b) for b in w.blocks}
     ext = w.ext
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     error = None
     for k in range(n + (1 if rest else 0)):
         h = dt if k < n else rest
@@ -457,9 +458,9 @@ def _run_reference(w, cfg, n, rest, dt):
             blocks[b].out = blocks[b]._step(*vals[b])
         for b in w.blocks:
             tr["out_" + b][k] = blocks[b].out
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     k_done = k if error else k + 1
-    return _finish(tr, k_done, w), error, wall, 0.0
+    return _finish(tr, k_done, w), error, wall, 0.0, cpu
 
 
 # ---------------------------------------------------------------------------
@@ -736,7 +737,7 @@ def _run_fmpy(w, cfg, n, rest, dt):
         nb = len(order)
         error = None
         k = -1
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         for k in range(n + (1 if rest else 0)):
             h = dt if k < n else rest
             t = k * dt
@@ -781,7 +782,7 @@ def _run_fmpy(w, cfg, n, rest, dt):
                     v = blk.pending
                 outs[j] = v
                 rec[j].append(v)
-        wall = time.perf_counter() - t0
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     finally:
         for blk in blocks.values():
             if isinstance(blk, _FmpyBlock):
@@ -790,7 +791,7 @@ def _run_fmpy(w, cfg, n, rest, dt):
     tr = _new_trace(w, len(w.t))
     for j, b in enumerate(order):
         tr["out_" + b][:len(rec[j])] = rec[j]
-    return _finish(tr, k_done, w), error, wall, setup
+    return _finish(tr, k_done, w), error, wall, setup, cpu
 
 
 # ---------------------------------------------------------------------------
@@ -848,14 +849,14 @@ def _run_libcosim(w, cfg, n, rest, dt):
     setup = time.perf_counter() - t_setup
     tr = _new_trace(w, n)
     error = None
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     for k in range(n):
         if k == 1:
             # libcosim initializes the slaves inside the first step: count that
             # step as setup, so wall_s is the stepping alone as for fmpy
             t1 = time.perf_counter()
             setup += t1 - t0
-            t0 = t1
+            t0, c0 = t1, time.process_time()
         for i, ref, arr in ext_in:
             man.slave_real_values(i, [ref], [float(arr[k])])
         if not ex.step(1):
@@ -864,10 +865,10 @@ def _run_libcosim(w, cfg, n, rest, dt):
             break
         for b, i, ref in outs:
             tr["out_" + b][k] = obs.last_real_values(i, [ref])[0]
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     k_done = k if error else n
     del ex
-    return _finish(tr, k_done, w), error, wall, setup
+    return _finish(tr, k_done, w), error, wall, setup, cpu
 
 
 _MASTER_FUNCS = {"reference": _run_reference, "fmpy": _run_fmpy, "libcosim": _run_libcosim}
@@ -934,9 +935,13 @@ def run_cosim(scenario="sine5", mode="ff+fb", master="reference", T=None, dt=DT,
         ``rms_error``, ``max_error`` [µm] (e = r - y), ``rms_input`` [V]
         (actuator input), ``sim_time_s`` [s] simulated, ``wall_s`` [s] of the
         stepping loop, ``setup_s`` [s] (instantiation/initialization),
-        ``rtf`` (sim_time_s / wall_s), ``steps`` completed, ``error`` (None,
+        ``cpu_s`` [s] (process CPU time of that loop, all threads: less
+        sensitive to other jobs on the machine than wall_s), ``rtf``
+        (sim_time_s / wall_s), ``steps`` completed, ``error`` (None,
         or why the run stopped early; the trace then ends there), ``trace``
         (arrays t [s], r [µm], u [V], y [µm], e [µm], out_<block>),
+        ``diagnostics`` (reference master: the compensator's saturated and
+        unconverged sample counts),
         ``config`` (everything needed to repeat the run).
     """
     if master not in MASTERS:
@@ -981,9 +986,14 @@ def run_cosim(scenario="sine5", mode="ff+fb", master="reference", T=None, dt=DT,
     bad = set(cfg["overrides"]) - set(w.blocks)
     if bad:
         raise ValueError(f"fmu_overrides for block(s) {sorted(bad)} not in the loop {w.blocks}")
-    trace, error, wall, setup = _MASTER_FUNCS[master](w, cfg, n, rest, dt)
+    trace, error, wall, setup, cpu = _MASTER_FUNCS[master](w, cfg, n, rest, dt)
     steps = len(trace["t"])
     e, u = trace["e"], trace["u"]
+    diagnostics = {}
+    comp = cfg.get("_comp")
+    if comp is not None:  # reference master: why a feedforward may fail
+        diagnostics["compensator"] = {"saturated_samples": int(comp.n_saturated),
+                                      "unconverged_samples": int(comp.n_not_converged)}
     sim = steps * dt
     result = {
         "scenario": scenario, "mode": mode, "master": master,
@@ -991,9 +1001,9 @@ def run_cosim(scenario="sine5", mode="ff+fb", master="reference", T=None, dt=DT,
         "rms_error": float(np.sqrt(np.mean(e * e))) if steps else math.nan,
         "max_error": float(np.max(np.abs(e))) if steps else math.nan,
         "rms_input": float(np.sqrt(np.mean(u * u))) if steps else math.nan,
-        "sim_time_s": sim, "wall_s": wall, "setup_s": setup,
+        "sim_time_s": sim, "wall_s": wall, "cpu_s": cpu, "setup_s": setup,
         "rtf": (sim / wall) if wall > 0 else math.inf,
-        "steps": steps, "error": error,
+        "steps": steps, "error": error, "diagnostics": diagnostics,
         "trace": trace,
         "config": {
             "T": T, "dt": dt, "hysteresis": bool(hysteresis), "k_lin_um_per_V": k_lin,
@@ -1049,8 +1059,10 @@ def ff_fb_study(out_dir=None, master="reference", trajectories=("sine5", "multi"
     Returns
     -------
     list of dict
-        One row per (trajectory, plant, mode): rms_error, max_error [µm],
-        rms_input [V], rel_rms_error (rms_error / peak-to-peak of H_d), error.
+        One row per (trajectory, plant, mode): rms_error_um, max_error_um,
+        rms_input_V, rel_rms_error (rms_error / peak-to-peak of H_d), steps,
+        comp_saturated (compensator samples at a voltage limit, reference
+        master), error.
     """
     model = _as_model(model, "model")
     tr_model = default_truth(model) if isinstance(truth, str) and truth == "default" else (
@@ -1067,7 +1079,10 @@ def ff_fb_study(out_dir=None, master="reference", trajectories=("sine5", "multi"
                              "rms_error_um": res["rms_error"], "max_error_um": res["max_error"],
                              "rms_input_V": res["rms_input"],
                              "rel_rms_error": res["rms_error"] / float(np.ptp(r)),
-                             "steps": res["steps"], "error": res["error"]})
+                             "steps": res["steps"],
+                             "comp_saturated": res["diagnostics"].get("compensator", {}).get(
+                                 "saturated_samples"),
+                             "error": res["error"]})
                 traces[(traj, pl, mode)] = res["trace"]
     if out_dir is not None:
         out = Path(out_dir)
