@@ -200,8 +200,10 @@ def test_public_names_and_file_helper(tmp_path):
     dt = read_record(tp, need=("Hd",)).dt  # the median step of the file's t column
     ref = C.compensate(m, TRAJ["multi"][:800], dt)
     assert np.array_equal(out.u, ref.u) and res.ok and abs(dt - DT) < 1e-15
-    with pytest.raises(ValueError, match="Hd"):
-        C.compensate_file(mp, op.with_name("nope.csv"), op)
+    bad = tmp_path / "bad.csv"
+    write_csv(bad, {"t": t[:10], "u": t[:10]})
+    with pytest.raises(ValueError, match="bad.csv: row 1: missing column.*Hd"):
+        C.compensate_file(mp, bad, op)
 
 
 def test_table4_on_an_ideal_bench_and_the_plots(tmp_path):
