@@ -1,0 +1,296 @@
+"""Candidate effect blocks for the sim-to-real gap diagnosis.
+
+Each block is a cheap wrapper around the nominal hysteresis model H (FONBW,
+eqs. 9-11) with few parameters. The attribution step (:mod:`fonbw.gap.attribute`)
+adds a block to the nominal model and refits everything jointly. To keep that
+refit cheap every block is written in one of three forms, which compose:
+
+* **input side** — ``transform_input(u, dt, th)`` changes the voltage before
+  the hysteresis (amplifier, saturation); the hysteresis is simulated again;
+* **linear output operator** — ``output_op(Y, dt, th)`` filters signals along
+  their last axis (dynamics, delay). A linear time-invariant operator L
+  commutes with the linear part of the model,
+  L(Σ ku_i u^i + kh ħ) = Σ ku_i L(u^i) + kh L(ħ), so the linear parameters ku
+  and kh are still solved by least squares (variable projection, as in
+  :mod:`fonbw.identify`). A pure delay is an output operator as well: the
+  models are time invariant and start at rest at u_0, so delaying the input
+  delays the output;
+* **additive regressors** — ``columns(ctx, th)`` adds signals whose gains are
+  solved linearly (creep: first-order modes driven by the reference output of
+  the model; drift: powers of time, not input-driven).
+
+Nonlinear parameters (``names``) are searched; linear ones (``lin_names``)
+are solved. Units: u [V], y [µm], t [s], frequencies [Hz].
+"""
+from __future__ import annotations
+
+import functools
+import math
+
+import control as ct
+import numba as nb
+import numpy as np
+from scipy.signal import lfilter
+
+from .. import plant as _plant
+
+__all__ = ["Effect", "Creep", "Dynamics", "Amplifier", "Delay", "Drift", "Saturation",
+           "library", "EFFECTS"]
+
+#: Names of the library's effect blocks, in the order they are tried.
+EFFECTS = ("creep", "dynamics", "amplifier", "delay", "drift", "saturation")
+
+
+class Effect:
+    """Base block: identity everywhere.
+
+    Attributes
+    ----------
+    name : str
+    names : tuple of str
+        Nonlinear (searched) parameters.
+    bounds : list of (lo, hi)
+    log_scale : list of bool
+    units : dict
+        Units of every parameter, nonlinear and linear.
+    grid : ndarray, shape (G, len(names))
+        Starting points tried with the nominal model fixed, before the joint refit.
+    lin_names : tuple of str
+        Names of the additive regressors' gains (solved linearly).
+    input_side : bool
+        True when ``transform_input`` is not the identity.
+    filtered_columns : bool
+        Whether later output operators act on this block's additive regressors
+        (creep acts before the mechanics; drift does not).
+    """
+
+    name = "none"
+    names: tuple = ()
+    lin_names: tuple = ()
+    units: dict = {}
+    input_side = False
+    filtered_columns = True
+
+    def __init__(self):
+        self.bounds = []
+        self.log_scale = []
+        self.grid = np.zeros((1, 0))
+
+    def transform_input(self, u, dt, th):
+        return u
+
+    def output_op(self, Y, dt, th):
+        return Y
+
+    def columns(self, ctx, th):
+        return None
+
+    def describe(self, th, lin) -> dict:
+        """Parameters by name (nonlinear then linear) as plain floats."""
+        d = {k: float(v) for k, v in zip(self.names, th)}
+        d.update({k: float(v) for k, v in zip(self.lin_names, lin)})
+        return d
+
+
+def _first_order(x, a):
+    """y_k = a y_{k-1} + (1 − a) x_k along the last axis, starting at rest at x_0.
+
+    The backward (implicit) form keeps a step's first sample from being
+    delayed, which a delay candidate would otherwise have to share.
+    """
+    x = np.asarray(x, dtype=float)
+    zi_shape = x.shape[:-1] + (1,)
+    zi = (a * x[..., :1]).reshape(zi_shape)
+    y, _ = lfilter([1.0 - a], [1.0, -a], x, axis=-1, zi=zi)
+    return y
+
+
+class Creep(Effect):
+    """Creep: first-order modes driven by the model output.
+
+    y = H + Σ_j g_j (LP_τj(H_ref) − H_ref), LP_τ(s) = 1/(τ s + 1), with fixed
+    time constants τ_j spread over the decades the records cover and gains g_j
+    [-] solved linearly. H_ref is the nominal model's output (the modes are
+    small, so driving them by the nominal rather than the refitted output
+    changes the fit by second-order terms only). The static gain is unchanged:
+    the g_j are the fractions of a step that arrive late, with time constant τ_j.
+    """
+
+    name = "creep"
+
+    def __init__(self, dt, t_max):
+        super().__init__()
+        taus = [tau for tau in (0.01, 0.1, 1.0, 10.0) if tau <= 2.0 * t_max and tau >= 20 * dt]
+        self.taus = tuple(taus or [max(20 * dt, t_max / 4)])
+        self.lin_names = tuple(f"g_{tau:g}s" for tau in self.taus)
+        self.units = {k: "1" for k in self.lin_names}
+
+    def columns(self, ctx, th):
+        h = ctx["y_ref"]
+        return np.column_stack([_first_order(h, math.exp(-ctx["dt"] / tau)) - h for tau in self.taus])
+
+
+class Drift(Effect):
+    """Slow thermal drift, not input-driven: d(t) = d1 (t/T0) + d2 (t/T0)², T0 = 10 s.
+
+    t is the time since the start of each record (every record starts from
+    rest); d1, d2 [µm] are shared by all records and solved linearly.
+    """
+
+    name = "drift"
+    lin_names = ("d1_um", "d2_um")
+    units = {"d1_um": "µm per 10 s", "d2_um": "µm per (10 s)²"}
+    filtered_columns = False
+    T0 = 10.0
+
+    def columns(self, ctx, th):
+        s = ctx["t"] / self.T0
+        return np.column_stack([s, s * s])
+
+
+class Dynamics(Effect):
+    """Second-order mechanical resonance on the output (:func:`fonbw.plant.mechanics`).
+
+    G(s) = ωn²/(s² + 2ζωn s + ωn²), ωn = 2π f_res, unit DC gain, discretized
+    with zero-order hold by python-control once per parameter pair.
+    """
+
+    name = "dynamics"
+    names = ("f_res", "zeta")
+    units = {"f_res": "Hz", "zeta": "1"}
+
+    def __init__(self, dt):
+        super().__init__()
+        fn = 0.5 / dt
+        self.bounds = [(fn / 100.0, 0.9 * fn), (0.02, 2.0)]
+        self.log_scale = [True, True]
+        f = np.geomspace(fn / 100.0, 0.9 * fn, 12)
+        z = np.array([0.05, 0.15, 0.4, 1.0])
+        self.grid = np.array([(a, b) for a in f for b in z])
+
+    @staticmethod
+    @functools.lru_cache(maxsize=4096)
+    def _coeffs(f, zeta, dt):
+        sysd = ct.c2d(_plant.mechanics(f, zeta), dt, method="zoh")
+        num = np.atleast_1d(np.squeeze(sysd.num[0][0]))
+        den = np.atleast_1d(np.squeeze(sysd.den[0][0]))
+        return num, den
+
+    def output_op(self, Y, dt, th):
+        num, den = self._coeffs(float(th[0]), float(th[1]), float(dt))
+        Y = np.asarray(Y, dtype=float)
+        # at rest at the first value (the model's rest state), so the filter
+        # does not see a step at t = 0
+        y0 = Y[..., :1]
+        out = lfilter(num, den, Y - y0, axis=-1)
+        return out + y0
+
+
+class Delay(Effect):
+    """Transport delay [s] (fractional samples: linear interpolation), up to 25 samples."""
+
+    name = "delay"
+    names = ("delay",)
+    units = {"delay": "s"}
+
+    def __init__(self, dt):
+        super().__init__()
+        self.bounds = [(0.0, 25.0 * dt)]
+        self.log_scale = [False]
+        self.grid = dt * np.array([[d] for d in (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0)])
+
+    def output_op(self, Y, dt, th):
+        Y = np.asarray(Y, dtype=float)
+        d = float(th[0]) / dt
+        m = int(math.floor(d))
+        f = d - m
+        n = Y.shape[-1]
+        pad = np.repeat(Y[..., :1], m + 1, axis=-1)
+        Z = np.concatenate([pad, Y], axis=-1)  # Z[k + m + 1] = Y[k]
+        a = Z[..., 1:n + 1]            # Y[k − m]
+        b = Z[..., 0:n]                # Y[k − m − 1]
+        return (1.0 - f) * a + f * b
+
+
+@nb.njit(cache=True)
+def _amp_kernel(u, a, smax, out):  # pragma: no cover - compiled
+    # RC output stage with a current limit: the voltage moves towards the
+    # command by the implicit first-order step, at most smax per sample.
+    v = u[0]
+    for k in range(u.shape[0]):
+        d = (1.0 - a) * (u[k] - v)
+        if d > smax:
+            d = smax
+        elif d < -smax:
+            d = -smax
+        v = v + d
+        out[k] = v
+
+
+class Amplifier(Effect):
+    """Amplifier with a capacitive load: bandwidth f_c and slew limit, before the hysteresis.
+
+    v_k = v_{k−1} + clip((1 − a)(u_k − v_{k−1}), ± S dt), a = e^(−2π f_c dt):
+    the first-order pole 1/(2π R C) of :func:`fonbw.plant.amplifier` (implicit
+    step) whose rate is capped at the slew rate S = I_max / C [V/s].
+    """
+
+    name = "amplifier"
+    names = ("f_c", "slew")
+    units = {"f_c": "Hz", "slew": "V/s"}
+    input_side = True
+
+    def __init__(self, dt, U):
+        super().__init__()
+        fn = 0.5 / dt
+        self.bounds = [(fn / 500.0, 2.0 * fn), (U / 0.1, U / (2 * dt))]
+        self.log_scale = [True, True]
+        f = np.geomspace(fn / 500.0, 2.0 * fn, 10)
+        s = np.geomspace(U / 0.1, U / (2 * dt), 4)
+        self.grid = np.array([(a, b) for a in f for b in s])
+
+    def transform_input(self, u, dt, th):
+        a = math.exp(-2.0 * math.pi * float(th[0]) * dt)
+        out = np.empty_like(u)
+        _amp_kernel(np.ascontiguousarray(u, dtype=float), a, float(th[1]) * dt, out)
+        return out
+
+
+class Saturation(Effect):
+    """Voltage saturation: the input is clipped at u_sat [V] (amplifier rail or stroke limit)."""
+
+    name = "saturation"
+    names = ("u_sat",)
+    units = {"u_sat": "V"}
+    input_side = True
+
+    def __init__(self, U):
+        super().__init__()
+        self.bounds = [(0.5 * U, 1.02 * U)]
+        self.log_scale = [False]
+        self.grid = np.linspace(0.6 * U, 1.01 * U, 10)[:, None]
+
+    def transform_input(self, u, dt, th):
+        return np.minimum(u, float(th[0]))
+
+
+def library(dt, U, t_max, names=EFFECTS):
+    """The candidate blocks for records with step `dt` [s], max |u| `U` [V], longest record `t_max` [s].
+
+    Parameters are in physical units, so the same blocks act on records
+    decimated for the global search (the blocks read the records' own step).
+    """
+    make = {
+        "creep": lambda: Creep(dt, t_max),
+        "dynamics": lambda: Dynamics(dt),
+        "amplifier": lambda: Amplifier(dt, U),
+        "delay": lambda: Delay(dt),
+        "drift": lambda: Drift(),
+        "saturation": lambda: Saturation(U),
+    }
+    out = []
+    for n in names:
+        if n not in make:
+            raise ValueError(f"unknown effect {n!r}; choose from {', '.join(EFFECTS)}")
+        out.append(make[n]())
+    return out
