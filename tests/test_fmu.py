@@ -42,6 +42,11 @@ SET_PARAMS = {"lam1": 0.9, "lam2": 0.8, "kh": -2.5e4}
 ALT_PARAMS = {"lam2": 0.7, "sigma": 5.0e4, "n": 1.5}
 # Each refused parameter set: name -> value (the name must appear in the log)
 ENGINES = ["fast", "exact", "short", "oustaloup"]
+# A first-order plant with direct feedthrough, custom names/units: w = lowpass(v)/2 + v/2
+PLANT_FT = {"kind": "linear_plant", "description": "test plant with feedthrough",
+            "input": {"name": "v", "unit": "V", "description": "test input"},
+            "output": {"name": "w", "unit": "um/V", "description": "test output"},
+            "A": [[-100.0]], "B": [[100.0]], "C": [[0.5]], "D": [[0.5]], "sys_dt": None}
 BAD_PARAMS = [("lam1", 1.5), ("n", 0.5), ("dt", -1e-4), ("kh", float("nan")),
               ("rho", -1.0), ("memory", "bogus")]
 
@@ -263,6 +268,16 @@ s2.setReal([vr2["u"]], [sig["u"][0]])
 s2.doStep(0.0, 3 * DT)
 rep["fresh_3dt_y"] = s2.getReal([vr2["y"]])[0]
 
+# 6. a plant with direct feedthrough (D != 0), custom names and units
+F = unzip("FonbwLinearPlant", "ft")
+s, vr = new(*F, "ft")
+rep["ft_y0"] = s.getReal([vr["w"]])[0]
+s.setReal([vr["v"]], [2.0])
+rep["ft_y_set"] = s.getReal([vr["w"]])[0]      # before any step: D v
+s.doStep(0.0, DT)
+rep["ft_y_step"] = s.getReal([vr["w"]])[0]     # C x_1 + D v
+s.terminate(); s.freeInstance()
+
 np.savez(work + "/fmpy_out.npz", **arr)
 json.dump(rep, open(work + "/fmpy_report.json", "w"), indent=1)
 print("driver done")
@@ -339,6 +354,9 @@ def work(tmp_path_factory):
     _run([ROOT / "build_fmu.py", "-o", w / "default"], cwd=w)
     _run([ROOT / "build_fmu.py", "--only", "hysteresis", "--params", w / "alt.json",
           "-o", w / "alt"], cwd=w)
+    (w / "plant_ft.json").write_text(json.dumps(PLANT_FT))
+    _run([ROOT / "build_fmu.py", "--only", "plant", "--plant", w / "plant_ft.json",
+          "-o", w / "ft"], cwd=w)
     return w
 
 
@@ -556,3 +574,24 @@ def test_fixed_parameter_change_after_initialization_is_ignored_with_log(fmpy_ru
     _, rep = fmpy_run
     assert rep["kh_after"] == rep["kh_before"]  # the stepper and the variable agree
     assert any(st == 3 and "kh" in m and "fixed" in m for _, st, m in rep["set_fixed_logs"])
+
+
+def test_plant_with_feedthrough_declares_and_applies_it(work, fmpy_run):
+    import control
+    from fmpy import read_model_description
+    from fmpy.validation import validate_fmu
+
+    fmu = work / "ft" / "FonbwLinearPlant.fmu"
+    assert validate_fmu(str(fmu)) == []
+    md = read_model_description(str(fmu))
+    v = {x.name: x for x in md.modelVariables}
+    assert (v["v"].causality, v["v"].unit, v["w"].causality, v["w"].unit) == \
+        ("input", "V", "output", "um/V")
+    assert [o.dependencies for o in md.outputs] == [[v["v"]]]
+    assert [o.dependencies for o in md.initialUnknowns] == [[v["v"]]]
+    _, rep = fmpy_run
+    assert rep["ft_y0"] == 0.0
+    assert rep["ft_y_set"] == 1.0  # D v, visible before any step
+    sysd = control.c2d(control.ss(*(PLANT_FT[k] for k in "ABCD")), DT, method="zoh")
+    x1 = float(sysd.B[0, 0]) * 2.0
+    assert rep["ft_y_step"] == pytest.approx(0.5 * x1 + 1.0, rel=1e-14)
