@@ -16,10 +16,12 @@ Run-time dependency decision: each FMU carries the `fonbw` package sources in
 its resources folder, next to the slave script (pythonfmu puts that folder
 first on sys.path), so it runs in any Python with numpy, scipy, numba and
 python-control, without `pip install fonbw`.  The FMU's numerics are therefore
-exactly those of the fonbw version it was built from.  Caveat inherent to
-Python FMUs: all of them share one interpreter per process, so if `fonbw` is
-already imported in the host process (or by an FMU loaded earlier), that copy
-is used.
+exactly those of the fonbw version it was built from.  At run time the slave
+imports a digest-checked copy of these sources from a per-user cache folder, so
+that numba's on-disk cache survives fresh extractions (fmu_src/README.md).
+Caveat inherent to Python FMUs: all of them share one interpreter per process,
+so if `fonbw` is already imported in the host process (or by an FMU loaded
+earlier), that copy is used.
 
 Model parameters are not baked into the script: the parameter set rides in the
 FMU resources as JSON and is read per instance, so two FMUs of the same kind
@@ -29,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
 import tempfile
 from pathlib import Path
