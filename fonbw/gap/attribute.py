@@ -373,7 +373,8 @@ def coverage(train, validate, dt):
     for r in validate:
         s = stats(r)
         for k, lim in lims.items():
-            if s[k] > 1.1 * lim + 1e-12:
+            # holds shorter than 50 ms are turning points, not holds
+            if s[k] > 1.1 * lim + 1e-12 and (k != "hold_s" or s[k] > 0.05):
                 flags.append({"condition": k, "train": lim, "validate": s[k], "record": str(r.path)})
         span = max(lims["u_max"] - umin, 1e-9)
         if s["u_min"] < umin - 0.1 * span:

@@ -174,6 +174,9 @@ class Dynamics(Effect):
         sysd = ct.c2d(_plant.mechanics(f, zeta), dt, method="zoh")
         num = np.atleast_1d(np.squeeze(sysd.num[0][0]))
         den = np.atleast_1d(np.squeeze(sysd.den[0][0]))
+        # python-control's numerator omits leading zeros (strictly proper);
+        # lfilter reads coefficients of z^0, z^-1, ..., so align the degrees
+        num = np.concatenate([np.zeros(len(den) - len(num)), num])
         return num, den
 
     def output_op(self, Y, dt, th):

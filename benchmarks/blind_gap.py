@@ -1,0 +1,160 @@
+"""Blind test of the gap diagnosis (issue 7) on the separate truth simulator.
+
+Scenarios are drawn at random with a seed (:func:`fonbw.gap.truth.draw_scenario`):
+no effect (null), one effect, two effects, an effect outside the library
+(50/150 Hz mains hum) and one effect below the noise floor, with magnitudes
+(RMS change on the validation records) from 0.1 to 100 noise standard
+deviations. Training records: eq. (19), steps with holds, multi-tone;
+validation: 1 and 20 Hz sines, another multi-tone, other steps; 5 kHz,
+about 20 s in all. :func:`fonbw.gap.diagnose` sees only the records.
+
+Usage::
+
+    python benchmarks/blind_gap.py [-n 40] [--seed0 1000] [--out /tmp/blind_gap.jsonl]
+    python benchmarks/blind_gap.py --summary /tmp/blind_gap.jsonl
+
+Each scenario is appended to the JSON-lines file as it finishes, so a long run
+can be stopped and summarized at any time. A single effect is *material* when
+its magnitude is at least 2 noise standard deviations.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from collections import Counter, defaultdict
+
+import numpy as np
+
+MATERIAL = 2.0
+
+
+def run(n, seed0, out, budget, kinds=None):
+    from fonbw.gap import diagnose
+    from fonbw.gap.truth import draw_scenario
+
+    done = set()
+    if os.path.exists(out):
+        with open(out) as fh:
+            done = {json.loads(line)["seed"] for line in fh if line.strip()}
+    for i in range(n):
+        seed = seed0 + i
+        if seed in done:
+            continue
+        kind = kinds[i % len(kinds)] if kinds else None
+        t0 = time.perf_counter()
+        sc = draw_scenario(seed, kind)
+        row = {"seed": seed, "kind": sc["kind"], "noise_std": sc["noise_std"],
+               "injected": {k: {"magnitude": v["magnitude"], "params": v["params"]} for k, v in sc["injected"].items()}}
+        try:
+            t1 = time.perf_counter()
+            res = diagnose(sc["train"], sc["validate"], seed=seed, budget=budget)
+            row["wall_s"] = time.perf_counter() - t1
+            v = res["verdict"]
+            row.update(named=v["effects"], gap_closed=v["gap_closed"], unexplained=v["unexplained"],
+                       at_floor=v["at_noise_floor"], noise_floor=res["nominal"]["noise_floor"],
+                       rms0=res["nominal"]["rms_validate"],
+                       candidates=[{k: c[k] for k in ("effect", "gap_closed", "accepted")} for c in res["candidates"]])
+        except Exception as exc:  # keep the run going; the summary counts failures
+            row["error"] = f"{type(exc).__name__}: {exc}"
+        row["total_s"] = time.perf_counter() - t0
+        with open(out, "a") as fh:
+            fh.write(json.dumps(row, default=float) + "\n")
+        print(f"seed {seed} {row['kind']:8s} injected {[(k, round(v['magnitude'], 2)) for k, v in row['injected'].items()]}"
+              f" -> named {row.get('named')} gap_closed {row.get('gap_closed', float('nan')):.3f}"
+              f" unexplained {row.get('unexplained')} ({row['total_s']:.0f} s)", flush=True)
+
+
+def summary(path):
+    rows = [json.loads(line) for line in open(path) if line.strip()]
+    ok = [r for r in rows if "error" not in r]
+    lines = [f"scenarios: {len(rows)} ({len(rows) - len(ok)} failed to run)"]
+    by = defaultdict(list)
+    for r in ok:
+        by[r["kind"]].append(r)
+    lines.append("by kind: " + ", ".join(f"{k} {len(v)}" for k, v in sorted(by.items())))
+
+    singles = [r for r in by["single"] if list(r["injected"].values())[0]["magnitude"] >= MATERIAL]
+    top1 = [r["named"][:1] == list(r["injected"]) for r in singles]
+    lines.append(f"top-1 accuracy on material single effects: {sum(top1)}/{len(top1)}"
+                 + (f" = {100 * np.mean(top1):.0f} %" if top1 else ""))
+    exact = [r["named"] == list(r["injected"]) for r in singles]
+    lines.append(f"exactly the injected effect named (single): {sum(exact)}/{len(exact)}")
+
+    tp = fn = fp = 0
+    for r in by["pair"]:
+        inj = set(r["injected"])
+        nam = set(r["named"])
+        tp += len(inj & nam)
+        fn += len(inj - nam)
+        fp += len(nam - inj)
+    if by["pair"]:
+        lines.append(f"pairs: recall {tp}/{tp + fn} = {100 * tp / max(tp + fn, 1):.0f} %, "
+                     f"precision {tp}/{tp + fp} = {100 * tp / max(tp + fp, 1):.0f} %")
+    nulls = by["null"] + by["below"]
+    fa = [bool(r["named"]) for r in nulls]
+    lines.append(f"false alarms (null and below-noise scenarios): {sum(fa)}/{len(fa)}"
+                 + (f" = {100 * np.mean(fa):.0f} %" if fa else "")
+                 + f"; of these at the noise floor: {sum(r['at_floor'] for r in nulls)}/{len(nulls)}, "
+                 f"'unexplained': {sum(r['unexplained'] for r in nulls)}/{len(nulls)}")
+    for r in by["outside"]:
+        lines.append(f"out-of-library (hum, {list(r['injected'].values())[0]['magnitude']:.1f} σ): named {r['named']}, "
+                     f"unexplained {r['unexplained']}, gap_closed {r['gap_closed']:.2f}")
+    mat = singles + [r for r in by["pair"]]
+    gc = np.array([r["gap_closed"] for r in mat])
+    if gc.size:
+        lines.append(f"gap_closed on material in-library scenarios (n={gc.size}): median {np.median(gc):.3f}, "
+                     f"10th percentile {np.quantile(gc, 0.1):.3f}")
+    w = np.array([r["wall_s"] for r in ok])
+    lines.append(f"wall time per diagnosis: median {np.median(w):.0f} s, max {w.max():.0f} s")
+
+    names = ["creep", "dynamics", "amplifier", "delay", "drift", "saturation"]
+    cols = names + ["none"]
+    conf = {a: Counter() for a in names}
+    for r in by["single"] + by["below"]:
+        a = list(r["injected"])[0]
+        m = list(r["injected"].values())[0]["magnitude"]
+        if m < MATERIAL:
+            continue
+        conf[a][r["named"][0] if r["named"] else "none"] += 1
+    lines.append("")
+    lines.append("confusion (material single effects; rows injected, columns named first):")
+    lines.append("")
+    lines.append("| injected \\ named | " + " | ".join(cols) + " |")
+    lines.append("|---" * (len(cols) + 1) + "|")
+    for a in names:
+        lines.append(f"| {a} | " + " | ".join(str(conf[a][c]) for c in cols) + " |")
+    lines.append("")
+    lines.append("per scenario:")
+    for r in rows:
+        inj = ", ".join(f"{k} {v['magnitude']:.2g}σ" for k, v in r["injected"].items()) or "-"
+        if "error" in r:
+            lines.append(f"  seed {r['seed']} {r['kind']}: {inj}: ERROR {r['error']}")
+        else:
+            lines.append(f"  seed {r['seed']} {r['kind']}: {inj} -> {r['named'] or '-'}"
+                         f" gap_closed {r['gap_closed']:.2f}{' unexplained' if r['unexplained'] else ''}"
+                         f"{' at-floor' if r['at_floor'] else ''} ({r['wall_s']:.0f} s)")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("-n", type=int, default=40, help="number of scenarios")
+    ap.add_argument("--seed0", type=int, default=1000)
+    ap.add_argument("--out", default="/tmp/blind_gap.jsonl")
+    ap.add_argument("--budget", type=int, default=1000)
+    ap.add_argument("--summary", metavar="JSONL", help="only summarize an existing run")
+    ns = ap.parse_args(argv)
+    if ns.summary:
+        print(summary(ns.summary))
+        return 0
+    run(ns.n, ns.seed0, ns.out, ns.budget)
+    print(summary(ns.out))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
