@@ -344,8 +344,55 @@ def _step_zhu(hd, P, S, lo, hi, tol, maxit, explicit, ku, kh, ctl, out, commit):
              ctl, out, commit)
 
 
-def _entries(model):
+# Eq. (22) form for Zhu2016: the mechanics are inverted on H_d's derivatives and
+# only the force balance is solved per step, for u in
+#     (k1/τ) e^(−t_k/τ) u_k + ĥ_k(u_k) = m0 Ḧd_k + c0 Ḣd_k + k0 (H_d,k − x0).
+@nb.njit(cache=True)
+def _zhu_force_core(u, commit, V):
+    """Trial: the force of eq. (20) for u_k (model units). Commit: advance the
+    model with u_k and return x_k [µm] (the model output)."""
+    if commit:
+        return _hy.zhu_core(u, True, V)
+    P, S = V
+    direct = P[1] / P[2] * math.exp(-S[6] * P[0] / P[2]) * u  # before the trial step, as zhu_step
+    _hy.zhu_core(u, False, V)
+    return direct + S[3]
+
+
+# not cached: numba refuses to cache a function that passes another function
+# of this module as a value ("dynamic globals"); compiled on first use.
+@nb.njit(cache=False)
+def _run_zhu22(hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh, u, y, status, nfev):
+    _run_on(_hy.plain_views, _zhu_force_core, hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh,
+            u, y, status, nfev)
+
+
+@nb.njit(cache=False)
+def _step_zhu22(hd, P, S, lo, hi, tol, maxit, explicit, ku, kh, ctl, out, commit):
+    _step_on(_hy.plain_views, _zhu_force_core, hd, P, S, lo, hi, tol, maxit, explicit, ku, kh,
+             ctl, out, commit)
+
+
+def _force_target(m, h, h1, h2, dt):
+    """Right side of eq. (22), m0 Ḧd + c0 Ḣd + k0 (H_d − x0), with backward
+    differences (h1, h2: H_d one and two samples back). Same arithmetic for
+    arrays (batch) and floats (per step), so both give the same bits."""
+    return m.m0 * ((h - 2.0 * h1) + h2) / (dt * dt) + m.c0 * (h - h1) / dt + m.k0 * (h - m.x0)
+
+
+def _form(model, form):
+    if form not in ("discrete", "eq22"):
+        raise ValueError(f"form must be 'discrete' or 'eq22', got {form!r}")
+    if form == "eq22" and not isinstance(model, _hy.Zhu2016):
+        raise ValueError(f"form='eq22' is the Zhu2016 compensator of eq. (22); "
+                         f"a {type(model).__name__} has no such form")
+    return form
+
+
+def _entries(model, form="discrete"):
     """(batch, per-step) compiled entry points for the model's kernels."""
+    if form == "eq22":
+        return _run_zhu22, _step_zhu22
     if isinstance(model, _hy.FONBW):
         return _run_fonbw, _step_fonbw
     if isinstance(model, _hy.CBW):
@@ -435,6 +482,8 @@ class CompensationResult:
         Solver tolerance on |y_model − H_d| [µm].
     explicit : bool
         Whether the one-step-delayed variant was used.
+    form : str
+        "discrete" or "eq22" (see :func:`compensate`).
     """
 
     u: np.ndarray
@@ -446,6 +495,7 @@ class CompensationResult:
     limits: tuple
     tol: float
     explicit: bool = False
+    form: str = "discrete"
 
     def __array__(self, dtype=None, copy=None):
         return self.u if dtype is None else self.u.astype(dtype)
@@ -500,7 +550,7 @@ class CompensationResult:
 
 
 def compensate(model, Hd, dt, *, limits=DEFAULT_LIMITS, explicit=False, tol=DEFAULT_TOL,
-               max_iter=_MAX_ITER) -> CompensationResult:
+               max_iter=_MAX_ITER, form="discrete") -> CompensationResult:
     """Feedforward voltage for a desired displacement, from rest (eqs. 16–17, 21, 22).
 
     Parameters
@@ -520,6 +570,14 @@ def compensate(model, Hd, dt, *, limits=DEFAULT_LIMITS, explicit=False, tol=DEFA
         Tolerance on |H(u_k) − H_d,k| [µm] of the implicit solve.
     max_iter : int
         Iteration cap of each bracketed solve.
+    form : {"discrete", "eq22"}
+        "discrete" (default, every kind): per-step inversion of the discrete
+        model, H(u_k) = H_d,k. "eq22" (Zhu2016 only): eq. (22) made implicit,
+        the mechanics inverted on H_d with backward differences and the force
+        balance (k1/τ)e^(−t/τ)u + ĥ(u) = m0 Ḧd + c0 Ḣd + k0 (H_d − x0)
+        solved per step; status and ``tol`` then refer to that force
+        balance, and the model output differs from H_d by the mechanics'
+        discretization.
 
     Returns
     -------
@@ -533,17 +591,23 @@ def compensate(model, Hd, dt, *, limits=DEFAULT_LIMITS, explicit=False, tol=DEFA
     lo, hi = _limits(limits)
     tol = _tol(tol)
     ku, kh = _explicit_coeffs(model, explicit)
+    form = _form(model, form)
     n = len(Hd)
+    target = Hd
+    if form == "eq22" and n:
+        h1 = np.concatenate([Hd[:1], Hd[:-1]])
+        h2 = np.concatenate([Hd[:1], Hd[:1], Hd[:-2]])[:n]
+        target = np.ascontiguousarray(_force_target(model, Hd, h1, h2, dt))
     P, ss = model._pack(dt, n_steps=max(n, 1))
     u = np.empty(n)
     y = np.empty(n)
     status = np.empty(n, dtype=np.int8)
     nfev = np.empty(n, dtype=np.int64)
     if n:
-        _entries(model)[0](Hd, P, ss, lo, hi, tol, int(max_iter), bool(explicit), ku, kh,
+        _entries(model, form)[0](target, P, ss, lo, hi, tol, int(max_iter), bool(explicit), ku, kh,
              u, y, status, nfev)
     return CompensationResult(u=u, y_model=y, Hd=Hd, dt=dt, status=status, nfev=nfev,
-                              limits=(lo, hi), tol=tol, explicit=bool(explicit))
+                              limits=(lo, hi), tol=tol, explicit=bool(explicit), form=form)
 
 
 class Compensator:
@@ -565,10 +629,10 @@ class Compensator:
         Counts since the last reset.
     """
 
-    _NCTL = 7  # steps, u_prev, slope, n_sat, n_fail, status, y_model
+    _NCTL = 9  # steps, u_prev, slope, n_sat, n_fail, status, y_model, H_d(k-1), H_d(k-2)
 
     def __init__(self, model, dt, *, limits=DEFAULT_LIMITS, explicit=False, tol=DEFAULT_TOL,
-                 max_iter=_MAX_ITER):
+                 max_iter=_MAX_ITER, form="discrete"):
         _check_model(model)
         self.model = model
         self.dt = _hy._dt(dt)
@@ -577,7 +641,8 @@ class Compensator:
         self.max_iter = int(max_iter)
         self.explicit = bool(explicit)
         self._ku, self._kh = _explicit_coeffs(model, explicit)
-        self._entry = _entries(model)[1]
+        self.form = _form(model, form)
+        self._entry = _entries(model, self.form)[1]
         self._out = np.zeros(4)
         self.reset()
 
@@ -593,6 +658,7 @@ class Compensator:
         self.n_not_converged = 0
         self.status = OK
         self.y_model = 0.0
+        self._hd1 = self._hd2 = 0.0
 
     def step(self, y_ref: float) -> float:
         """Voltage u_k [V] for the desired displacement y_ref = H_d,k [µm]."""
@@ -601,6 +667,12 @@ class Compensator:
             raise ValueError(f"desired displacement at step {self.steps} is not finite: {y_ref!r}")
         st, out = self._st, self._out
         lo, hi = self.limits
+        if self.form == "eq22":
+            if self.steps == 0:
+                self._hd1 = self._hd2 = hd  # at rest before t = 0
+            target = _force_target(self.model, hd, self._hd1, self._hd2, self.dt)
+            self._hd2, self._hd1 = self._hd1, hd
+            hd = target
         # solve and commit in one compiled call, except when the exact
         # engine's window may have to grow first: the model stepper commits then
         self._entry(hd, st.P, st.S, lo, hi, self.tol, self.max_iter, self.explicit, self._ku,
@@ -622,7 +694,8 @@ class Compensator:
 
     def get_state(self) -> np.ndarray:
         head = [float(self.steps), self._ctl[0], self._ctl[1], float(self.n_saturated),
-                float(self.n_not_converged), float(self.status), float(self.y_model)]
+                float(self.n_not_converged), float(self.status), float(self.y_model),
+                self._hd1, self._hd2]
         return np.concatenate([head, self._st.get_state()])
 
     def set_state(self, state) -> None:
@@ -634,16 +707,18 @@ class Compensator:
         self._ctl = np.array([s[1], s[2]])
         self.n_saturated, self.n_not_converged, self.status = int(s[3]), int(s[4]), int(s[5])
         self.y_model = float(s[6])
+        self._hd1, self._hd2 = float(s[7]), float(s[8])
 
 
 def compensator(model, dt, *, limits=DEFAULT_LIMITS, explicit=False, tol=DEFAULT_TOL,
-                max_iter=_MAX_ITER) -> Compensator:
+                max_iter=_MAX_ITER, form="discrete") -> Compensator:
     """Per-sample compensator (for FMUs and loops); see :class:`Compensator`."""
-    return Compensator(model, dt, limits=limits, explicit=explicit, tol=tol, max_iter=max_iter)
+    return Compensator(model, dt, limits=limits, explicit=explicit, tol=tol, max_iter=max_iter,
+                       form=form)
 
 
 def compensate_file(model_path, traj_path, out_path, *, limits=DEFAULT_LIMITS, explicit=False,
-                    tol=DEFAULT_TOL) -> CompensationResult:
+                    tol=DEFAULT_TOL, form="discrete") -> CompensationResult:
     """``fonbw compensate``: model JSON + trajectory CSV (t, Hd) -> CSV (t, u, Hd, y_model, status).
 
     Errors in the inputs raise ValueError (``fonbw.io.DataError`` for the
@@ -653,7 +728,7 @@ def compensate_file(model_path, traj_path, out_path, *, limits=DEFAULT_LIMITS, e
 
     model = _hy.load_model(model_path)
     rec = read_record(traj_path, need=("Hd",))
-    res = compensate(model, rec.hd, rec.dt, limits=limits, explicit=explicit, tol=tol)
+    res = compensate(model, rec.hd, rec.dt, limits=limits, explicit=explicit, tol=tol, form=form)
     write_csv(out_path, {"t": rec.t, "u": res.u, "Hd": res.Hd, "y_model": res.y_model,
                          "status": res.status.astype(float)})
     return res
@@ -703,8 +778,10 @@ def table4(bench, models, dt=None, out_dir=None, *, T=2.0, limits=DEFAULT_LIMITS
     ----------
     bench : fonbw.bench.Bench
         The plant. Anything with ``run(u) -> y`` [µm] and ``dt`` [s] works.
-    models : mapping of str to model
-        Compensator name (e.g. "FONBW", "CBW", "Zhu") -> identified model.
+    models : mapping of str to model or (model, dict)
+        Compensator name (e.g. "FONBW", "CBW", "Zhu") -> identified model,
+        optionally with keyword options of :func:`compensate` for it (e.g.
+        ``(zhu_model, {"form": "eq22"})``).
     dt : float, optional
         Step [s]; must equal ``bench.dt`` (default).
     out_dir : path, optional
@@ -725,8 +802,10 @@ def table4(bench, models, dt=None, out_dir=None, *, T=2.0, limits=DEFAULT_LIMITS
     list of dict
         One row per (compensator, trajectory[, plant]) with ``compensator``,
         ``trajectory``, ``plant`` ("bench" or "model"), ``rms_error`` [µm],
-        ``max_error`` [µm], ``rms_input`` [V], ``saturated`` and
-        ``not_converged`` (sample counts), ``samples``.
+        ``max_error`` [µm], ``rms_error_solved`` [µm] (over the samples whose
+        equation was solved, i.e. neither saturated nor unconverged),
+        ``rms_input`` [V], ``saturated`` and ``not_converged`` (sample
+        counts), ``samples``.
     """
     bdt = float(getattr(bench, "dt"))
     dt = bdt if dt is None else _hy._dt(dt)
@@ -734,8 +813,11 @@ def table4(bench, models, dt=None, out_dir=None, *, T=2.0, limits=DEFAULT_LIMITS
         raise ValueError(f"dt = {dt!r} s differs from the bench's sampling step {bdt!r} s")
     if not models:
         raise ValueError("models must name at least one model to compensate with")
-    for name, m in models.items():
+    specs = {}
+    for name, spec in models.items():
+        m, opts = spec if isinstance(spec, tuple) else (spec, {})
         _check_model(m)
+        specs[name] = (m, {"limits": limits, "explicit": explicit, **opts})
     T = float(T)
     if not (math.isfinite(T) and T > 0):
         raise ValueError(f"T must be a positive duration [s], got {T!r}")
@@ -744,21 +826,23 @@ def table4(bench, models, dt=None, out_dir=None, *, T=2.0, limits=DEFAULT_LIMITS
     rows, traces = [], {}
     for tname, fn in trajs.items():
         Hd = np.asarray(fn(t), dtype=float)
-        for mname, m in models.items():
-            res = compensate(m, Hd, dt, limits=limits, explicit=explicit)
+        for mname, (m, opts) in specs.items():
+            res = compensate(m, Hd, dt, **opts)
             y = np.asarray(bench.run(res.u), dtype=float)
             traces[tname, mname] = (Hd, y)
             plants = [("bench", y)] + ([("model", res.y_model)] if ideal else [])
             for pname, yp in plants:
                 e = yp - Hd
+                ok = res.status == OK
                 rows.append({"compensator": mname, "trajectory": tname, "plant": pname,
                              "rms_error": _rms(e), "max_error": float(np.max(np.abs(e))),
+                             "rms_error_solved": _rms(e[ok]),
                              "rms_input": _rms(res.u),
                              "saturated": int(np.count_nonzero(res.saturated)),
                              "not_converged": int(res.unconverged_samples.size),
                              "samples": int(len(Hd))})
     if out_dir is not None:
-        _write_table4(out_dir, rows, traces, t, list(trajs), list(models))
+        _write_table4(out_dir, rows, traces, t, list(trajs), list(specs))
     return rows
 
 
@@ -824,8 +908,11 @@ def reproduce_table4(out_dir=None, *, seed=0, max_evals=3000, T=2.0, models=None
 
     Identifies FONBW, CBW and the Zhu model on the bench's eq. (19) record
     (20 s at 10 kHz, :func:`fonbw.identify`, same seed for all) unless
-    ``models`` is given, then runs :func:`table4`. With ``out_dir`` also
-    writes the identified models as ``model_<name>.json``.
+    ``models`` is given, then runs :func:`table4`; the Zhu model
+    compensates in the form of eq. (22) (``form="eq22"``: the per-step
+    inversion of its discrete mechanics is myopic and runs into the voltage
+    limits). With ``out_dir`` also writes the identified models as
+    ``model_<name>.json``.
     """
     from .bench import Bench, eq19_input
 
@@ -842,7 +929,9 @@ def reproduce_table4(out_dir=None, *, seed=0, max_evals=3000, T=2.0, models=None
         os.makedirs(out_dir, exist_ok=True)
         for name, m in models.items():
             m.save(os.path.join(out_dir, f"model_{name.lower()}.json"))
-    return table4(bench, models, bench.dt, out_dir, T=T)
+    specs = {name: ((m, {"form": "eq22"}) if isinstance(m, _hy.Zhu2016) else m)
+             for name, m in models.items()}
+    return table4(bench, specs, bench.dt, out_dir, T=T)
 
 
 # `import fonbw.compensate` (or any import of this module) binds the module as

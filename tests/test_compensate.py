@@ -210,13 +210,14 @@ def test_table4_on_an_ideal_bench_and_the_plots(tmp_path):
     from fonbw.bench import Bench
 
     bench = Bench.ideal(seed=0)
-    models = {"NBW": MODELS["nbw"](), "CBW": MODELS["cbw"]()}
+    models = {"NBW": MODELS["nbw"](), "CBW": MODELS["cbw"](), "Zhu": (zhu(), {"form": "eq22"})}
     rows = C.table4(bench, models, out_dir=tmp_path, T=0.2)
-    assert len(rows) == 2 * 2 * 2
+    assert len(rows) == 3 * 2 * 2
     for r in rows:
         assert r["samples"] == 2000 and r["saturated"] == 0 and r["not_converged"] == 0
-        if r["plant"] == "model":  # compensator and plant from the same model
-            assert r["rms_error"] <= 1e-9
+        if r["plant"] == "model" and r["compensator"] != "Zhu":
+            # compensator and plant from the same model
+            assert r["rms_error"] <= 1e-9 and r["rms_error_solved"] == r["rms_error"]
         else:  # the bench is not a Bouc-Wen model: a real, finite error
             assert 1e-3 < r["rms_error"] < 5.0
         assert 10.0 < r["rms_input"] < 120.0
@@ -229,3 +230,28 @@ def test_table4_on_an_ideal_bench_and_the_plots(tmp_path):
     assert "paper" in C.format_table4(rows)
     with pytest.raises(ValueError, match="differs"):
         C.table4(bench, models, dt=2 * DT)
+
+
+def test_zhu_eq22_form_solves_the_force_balance():
+    # eq. (22) made implicit: (k1/τ)e^(−t/τ)u + ĥ(u) = m0 Ḧd + c0 Ḣd + k0 (Hd − x0),
+    # checked with the h that the model's own simulate returns
+    m = zhu()
+    Hd = TRAJ["multi"][:2000]
+    res = C.compensate(m, Hd, DT, form="eq22")
+    assert res.ok, res.summary()
+    _, h = m.simulate(res.u, DT, return_state=True)
+    k = np.arange(len(Hd))
+    force = m.k1 / m.tau * np.exp(-k * DT / m.tau) * res.u + h
+    h1 = np.r_[Hd[0], Hd[:-1]]
+    h2 = np.r_[Hd[0], Hd[0], Hd[:-2]]
+    target = m.m0 * (Hd - 2 * h1 + h2) / DT**2 + m.c0 * (Hd - h1) / DT + m.k0 * (Hd - m.x0)
+    assert np.max(np.abs(force - target)) <= 1e-9
+    # the mechanics are inverted on Hd, not on the discrete model: close, not exact
+    assert 1e-9 < _rel(res.y_model, Hd) < 2e-2
+    c = C.compensator(m, DT, form="eq22")
+    u = [c.step(x) for x in Hd]
+    assert np.array_equal(u, res.u)
+    with pytest.raises(ValueError, match="eq22"):
+        C.compensate(MODELS["cbw"](), Hd, DT, form="eq22")
+    with pytest.raises(ValueError, match="form"):
+        C.compensate(m, Hd, DT, form="continuous")
