@@ -42,6 +42,7 @@ SET_PARAMS = {"lam1": 0.9, "lam2": 0.8, "kh": -2.5e4}
 ALT_PARAMS = {"lam2": 0.7, "sigma": 5.0e4, "n": 1.5}
 # Each refused parameter set: name -> value (the name must appear in the log)
 ENGINES = ["fast", "exact", "short", "oustaloup"]
+FREQS = [0.0, 20.0, 500.0, 1500.0, 5000.0]  # Hz, plant transfer-function check
 # A first-order plant with direct feedthrough, custom names/units: w = lowpass(v)/2 + v/2
 PLANT_FT = {"kind": "linear_plant", "description": "test plant with feedthrough",
             "input": {"name": "v", "unit": "V", "description": "test input"},
@@ -93,6 +94,8 @@ out = {
     # communication step 10 dt: the FMU holds u over 10 internal steps
     "y_zoh10": base.simulate(np.repeat(u[:cfg["N_SHORT"]:10], 10), dt),
 }
+import fonbw.plant
+out["mech_fr"] = fonbw.plant.mechanics()(2j * np.pi * np.array(cfg["FREQS"]))
 try:
     out["u_comp"] = np.asarray(fonbw.compensate(base, y_ref, dt), dtype=float)
     ns = cfg["N_SHORT"]
@@ -349,7 +352,7 @@ def work(tmp_path_factory):
     np.savez(w / "signals.npz", t=t, u=u, y_ref=y_ref, h=h)
     (w / "config.json").write_text(json.dumps(dict(
         N=N, N_SHORT=N_SHORT, DT=DT, SET_PARAMS=SET_PARAMS, ALT_PARAMS=ALT_PARAMS,
-        BAD_PARAMS=BAD_PARAMS, ENGINES=ENGINES)))
+        BAD_PARAMS=BAD_PARAMS, ENGINES=ENGINES, FREQS=FREQS)))
     _run(["-c", REFERENCE, ROOT, w], cwd=w)
     _run([ROOT / "build_fmu.py", "-o", w / "default"], cwd=w)
     _run([ROOT / "build_fmu.py", "--only", "hysteresis", "--params", w / "alt.json",
@@ -493,6 +496,14 @@ def test_plant_fmu_equals_python_control(fmpy_run):
     # row k of fmpy's result is the output at t_k: C x_k (D = 0), the k-th
     # sample of control.forced_response of the c2d (ZOH) system
     assert _rel(arr["plant"], _plant_reference(h)) <= REL_TOL
+
+
+def test_default_plant_is_the_library_mechanics(ref):
+    import control
+
+    d = json.loads((ROOT / "models" / "plant_default.json").read_text())
+    g = control.ss(d["A"], d["B"], d["C"], d["D"])(2j * np.pi * np.array(FREQS))
+    np.testing.assert_allclose(np.ravel(g), np.ravel(ref["mech_fr"]), rtol=1e-12)
 
 
 def test_instances_with_different_parameters_stay_independent(fmpy_run, ref):
