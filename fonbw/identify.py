@@ -461,7 +461,9 @@ def identify(records, kind: str = "fonbw", *, seed=None, max_evals: int = 5000,
         Search σ^(1/n)ρ instead of σ (module docstring).
     popsize, polish, polish_maxfev, callback
         Passed to :func:`fonbw.de.jde_minimize`; ``polish_maxfev`` defaults to
-        30 % of ``max_evals`` (local refinement pays off here).
+        30 % of ``max_evals`` (local refinement pays off here); ``popsize``
+        defaults to jDE's clip(10 d, 20, 100), reduced for budgets too small
+        for five generations of it.
 
     Returns
     -------
@@ -488,6 +490,12 @@ def identify(records, kind: str = "fonbw", *, seed=None, max_evals: int = 5000,
                                 or not 1 <= workers <= numba.config.NUMBA_NUM_THREADS):
         raise ValueError(f"workers must be an integer in [1, "
                          f"{numba.config.NUMBA_NUM_THREADS}], got {workers!r}")
+    if popsize is None:
+        # jDE's default population, shrunk for small budgets so that at least
+        # about five generations run (a tiny budget is a user's explicit choice).
+        d = len(space.names)
+        de_budget = int(max_evals) - (int(polish_maxfev) if polish else 0)
+        popsize = int(min(np.clip(10 * d, 20, 100), max(4, de_budget // 5)))
     proj = _Projected(space, recs, pnames, kind, memory, Nsim)
 
     old_threads = numba.get_num_threads()

@@ -278,3 +278,11 @@ def test_unknown_memory_engine_is_refused(truth):
     rec = noisy_record(truth, eq19(T=1.0), seed=0)
     with pytest.raises(ValueError, match="memory must be one of"):
         identify(rec, "fonbw", memory="infinite")
+
+
+def test_small_budget_shrinks_population_and_respects_cap(truth):
+    rec = noisy_record(truth, eq19(T=2.0), seed=12)
+    res = identify(rec, "fonbw", seed=0, max_evals=60)
+    assert res.nfev <= 60
+    assert len(res.history) >= 4          # several generations, not one
+    assert np.isfinite(res.rms)
