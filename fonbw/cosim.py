@@ -50,7 +50,6 @@ Units: u [V], y, r [µm], t [s].
 from __future__ import annotations
 
 import argparse
-import ctypes
 import getpass
 import hashlib
 import json
@@ -319,33 +318,21 @@ class _Wiring:
             raise ValueError("the loop needs an actuator or a plant block")
         self.blocks = blocks
         self.measured = blocks[-1]
-        nxt = {}  # downstream block of each output (a chain)
-        for a, b in zip(blocks, blocks[1:]):
-            nxt[a] = b
+        # the blocks form a chain in this order: each one feeds the next
+        nxt = dict(zip(blocks, blocks[1:]))
         self.src = {}  # (block, input) -> ("out", block) | ("ext", key)
-        first = blocks[0] if mode == "open" else None
         # who drives the actuator (or the plant when there is no actuator)
         drive = "ctrl" if mode in ("fb", "ff+fb") else ("comp" if mode == "ff" else None)
         target = act or "plant"
-        if drive is None:
-            self.src[(target, self.IO[target][0][0])] = ("ext", "u_open")
-        else:
-            self.src[(target, self.IO[target][0][0])] = ("out", drive)
+        self.src[(target, self.IO[target][0][0])] = ("ext", "u_open") if drive is None else ("out", drive)
         if act and has_plant:
             self.src[("plant", "h")] = ("out", act)
-        if mode == "ff+fb":
-            nxt["comp"] = "ctrl"
-        if mode == "ff":
-            nxt["comp"] = target
         if "ctrl" in blocks:
-            nxt["ctrl"] = target
             self.src[("ctrl", "r")] = ("ext", "r_ctrl")
             self.src[("ctrl", "y")] = ("out", self.measured)
             self.src[("ctrl", "u_ff")] = ("out", "comp") if "comp" in blocks else ("ext", "zero")
         if "comp" in blocks:
             self.src[("comp", "y_ref")] = ("ext", "r_comp")
-        if act:
-            nxt[act] = "plant" if has_plant else None
 
         def hops(b):
             d = 0
@@ -364,8 +351,8 @@ class _Wiring:
             self.ext["r_comp"] = trajectory(scenario, (k + self.preview["comp"]) * dt)
         if "ctrl" in blocks:
             self.ext["r_ctrl"] = trajectory(scenario, (k - 1) * dt)
-        if first is not None:
-            self.ext["u_open"] = trajectory(scenario, (k + self.preview[first]) * dt) / k_lin
+        if drive is None:
+            self.ext["u_open"] = trajectory(scenario, (k + self.preview[target]) * dt) / k_lin
         self.drive = "u_open" if drive is None else drive
         self.actuator = target
 
@@ -374,7 +361,7 @@ class _Wiring:
 
 
 def _new_trace(w, n):
-    tr = {"t": w.t, "r": w.r, "u": np.full(n, np.nan), "y": np.full(n, np.nan)}
+    tr = {"t": w.t, "r": w.r}  # u, y, e are derived in _finish
     for b in w.blocks:
         tr["out_" + b] = np.full(n, np.nan)
     return tr
