@@ -29,12 +29,34 @@ Zhu et al., eq. (22)
     eq. (20) decays with absolute time (τ ≈ 2e-5 s in Table 1), so after a
     few τ the division is by a number that underflows to zero and eq. (22)
     gives u → ∞. What actually carries u into the output after that is the
-    Bouc-Wen state h (through A u̇ and δ u sgn u̇). The honest implementation
-    is the per-step inversion of the discrete model (x_k as a function of
-    u_k, mechanics included), which is what :func:`compensate` does for
-    ``Zhu2016``. Its one-step authority is small (the force acts on x_k
-    through the mechanics' Γ ≈ dt²/(2 m0)), so it saturates more readily than
-    FONBW or CBW; the result reports every saturated sample.
+    Bouc-Wen state h (through A u̇ and δ u sgn u̇). Two honest readings:
+
+    ``form="discrete"`` (default)
+        the per-step inversion of the discrete model, x_k as a function of
+        u_k with the mechanics included, as for every other kind: model ∘
+        compensator = identity. Its one-step authority is small (the force
+        reaches x_k through the mechanics' Γ, about dt²/(2 m0) for light
+        damping), and it is greedy: one out-of-reach sample (an x0 offset at
+        t = 0, say) can park u on a limit where the rate-independent h no
+        longer moves. On the Zhu model identified from the virtual bench it
+        does exactly that.
+    ``form="eq22"``
+        eq. (22) made implicit: the mechanics are inverted on H_d (backward
+        differences for Ḣd, Ḧd) and the force balance
+        (k1/τ)e^(−t_k/τ) u_k + ĥ_k(u_k) = m0 Ḧd + c0 Ḣd + k0 (H_d − x0)
+        is solved per step for u_k. That is the compensator Table 4 compares.
+
+Invertibility
+    The per-step inverse exists and is stable when the model's step map
+    u_k ↦ H_k has the sign of its quasi-static gain. For FONBW with k_h ρ < 0
+    and λ1 > λ2 — the paper's Table 1 set, and what identification finds on
+    the virtual bench — the one-step slope k_u1 + k_h ρ dt^(λ2−λ1) (small ħ)
+    is negative at 10 kHz: a step in u first moves H the wrong way, the
+    linearization has a right-half-plane zero, and the exact inverse is
+    unstable. The solver then does what it can (chatters, saturates, or
+    reports samples without a root) and says so in the status; it does not
+    hide it. With the paper's Table 1 set the 5-Hz trajectory saturates at
+    0 V from the second sample on.
 
 Explicit (one-step-delayed) variant
     ``explicit=True`` evaluates G with the previous voltage and the previous
