@@ -5,6 +5,11 @@ fonbw_fmu_common.py for the sampling convention, the FMU state and why nothing
 here raises.  Own module name: FMUs in one process share sys.modules.
 """
 from fonbw_fmu_common import FonbwModelSlave
+from pythonfmu import Fmi2Causality, Fmi2Variability, Integer
+from pythonfmu.enums import Fmi2Initial, Fmi2Status
+
+# fonbw.compensate per-sample status codes (OK, SAT_LOW, SAT_HIGH, NOT_CONVERGED)
+_STATUS = {1: "saturated at u_min", 2: "saturated at u_max", 3: "not converged"}
 
 
 class FonbwCompensator(FonbwModelSlave):
@@ -23,7 +28,29 @@ class FonbwCompensator(FonbwModelSlave):
                                           "range); unreachable targets saturate here")
         self._parameter("u_max", hi, "V", "Upper voltage limit of the compensator (amplifier "
                                           "range); unreachable targets saturate here")
+        self.register_variable(Integer(
+            "status", description="Compensator status of the last internal step: 0 ok, "
+            "1 saturated at u_min, 2 saturated at u_max (y_ref unreachable within the "
+            "limits), 3 solver not converged", causality=Fmi2Causality.output,
+            variability=Fmi2Variability.discrete, initial=Fmi2Initial.calculated,
+            getter=lambda: 0 if self._stepper is None else int(self._stepper.status)))
+        self._bad_before = False  # throttles the saturation warning to episode starts
         self._default_experiment()
+
+    def do_step(self, current_time: float, step_size: float) -> bool:
+        s = self._stepper
+        n0 = (s.n_saturated + s.n_not_converged) if s is not None else 0
+        ok = super().do_step(current_time, step_size)
+        s = self._stepper
+        if ok and s is not None:
+            bad = s.n_saturated + s.n_not_converged > n0
+            if bad and not self._bad_before:
+                self.log(f"{self.instance_name}: at t={current_time!r} y_ref={self._x_in!r} um: "
+                         f"{_STATUS.get(int(s.status), 'saturated or not converged')} "
+                         f"(u = {self._x_out!r} V); further samples of this episode are "
+                         f"not logged, see the status output", Fmi2Status.warning)
+            self._bad_before = bad
+        return ok
 
     def _build(self):
         import fonbw  # bundled copy

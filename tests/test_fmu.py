@@ -43,6 +43,8 @@ ALT_PARAMS = {"lam2": 0.7, "sigma": 5.0e4, "n": 1.5}
 # Each refused parameter set: name -> value (the name must appear in the log)
 ENGINES = ["fast", "exact", "short", "oustaloup"]
 FREQS = [0.0, 20.0, 500.0, 1500.0, 5000.0]  # Hz, plant transfer-function check
+# Desired displacements with unreachable stretches (um), for the compensator status
+Y_SAT = [5.0] * 3 + [500.0] * 3 + [5.0] * 2 + [-50.0] * 2 + [5.0] * 2
 # A first-order plant with direct feedthrough, custom names/units: w = lowpass(v)/2 + v/2
 PLANT_FT = {"kind": "linear_plant", "description": "test plant with feedthrough",
             "input": {"name": "v", "unit": "V", "description": "test input"},
@@ -98,6 +100,8 @@ import fonbw.plant
 out["mech_fr"] = fonbw.plant.mechanics()(2j * np.pi * np.array(cfg["FREQS"]))
 try:
     out["u_comp"] = np.asarray(fonbw.compensate(base, y_ref, dt), dtype=float)
+    sat = fonbw.compensate(base, np.array(cfg["Y_SAT"]), dt)
+    out["sat_u"], out["sat_status"] = sat.u, sat.status.astype(float)
     ns = cfg["N_SHORT"]
     out["y_chain"] = base.simulate(np.concatenate([[0.0], out["u_comp"][:ns - 1]]), dt)
 except Exception as e:  # compensator not available: reported by its test
@@ -281,6 +285,18 @@ s.doStep(0.0, DT)
 rep["ft_y_step"] = s.getReal([vr["w"]])[0]     # C x_1 + D v
 s.terminate(); s.freeInstance()
 
+# 7. compensator with unreachable targets: status output and warning log lines
+s, vr = new(*C, "sat")
+logs.clear()
+cs = []
+for k, yr in enumerate(cfg["Y_SAT"]):
+    s.setReal([vr["y_ref"]], [yr])
+    s.doStep(k * DT, DT)
+    cs.append((s.getReal([vr["u"]])[0], s.getInteger([vr["status"]])[0]))
+arr["sat_u"], arr["sat_status"] = np.array(cs).T
+rep["sat_logs"] = list(logs)
+s.terminate(); s.freeInstance()
+
 np.savez(work + "/fmpy_out.npz", **arr)
 json.dump(rep, open(work + "/fmpy_report.json", "w"), indent=1)
 print("driver done")
@@ -352,7 +368,7 @@ def work(tmp_path_factory):
     np.savez(w / "signals.npz", t=t, u=u, y_ref=y_ref, h=h)
     (w / "config.json").write_text(json.dumps(dict(
         N=N, N_SHORT=N_SHORT, DT=DT, SET_PARAMS=SET_PARAMS, ALT_PARAMS=ALT_PARAMS,
-        BAD_PARAMS=BAD_PARAMS, ENGINES=ENGINES, FREQS=FREQS)))
+        BAD_PARAMS=BAD_PARAMS, ENGINES=ENGINES, FREQS=FREQS, Y_SAT=Y_SAT)))
     _run(["-c", REFERENCE, ROOT, w], cwd=w)
     _run([ROOT / "build_fmu.py", "-o", w / "default"], cwd=w)
     _run([ROOT / "build_fmu.py", "--only", "hysteresis", "--params", w / "alt.json",
@@ -606,3 +622,16 @@ def test_plant_with_feedthrough_declares_and_applies_it(work, fmpy_run):
     sysd = control.c2d(control.ss(*(PLANT_FT[k] for k in "ABCD")), DT, method="zoh")
     x1 = float(sysd.B[0, 0]) * 2.0
     assert rep["ft_y_step"] == pytest.approx(0.5 * x1 + 1.0, rel=1e-14)
+
+
+def test_compensator_reports_saturation(fmpy_run, ref):
+    arr, rep = fmpy_run
+    assert "sat_status" in ref, "fonbw.compensate is not available"
+    np.testing.assert_array_equal(arr["sat_status"], ref["sat_status"])
+    np.testing.assert_array_equal(arr["sat_u"], ref["sat_u"])
+    st = ref["sat_status"]
+    assert np.any(st != 0)  # the sequence does saturate
+    # one warning log line per episode of non-ok samples
+    episodes = int(np.sum((st[1:] != 0) & (st[:-1] == 0)) + (st[0] != 0))
+    warnings = [m for _, lv, m in rep["sat_logs"] if lv == 1]
+    assert len(warnings) == episodes, rep["sat_logs"]
