@@ -57,7 +57,8 @@ def run(n, seed0, out, budget, kinds=None):
             row.update(named=v["effects"], gap_closed=v["gap_closed"], unexplained=v["unexplained"],
                        at_floor=v["at_noise_floor"], noise_floor=res["nominal"]["noise_floor"],
                        rms0=res["nominal"]["rms_validate"],
-                       candidates=[{k: c[k] for k in ("effect", "gap_closed", "accepted")} for c in res["candidates"]])
+                       candidates=[{k: c[k] for k in ("effect", "gap_closed", "accepted", "checks")}
+                                   for c in res["candidates"]])
         except Exception as exc:  # keep the run going; the summary counts failures
             row["error"] = f"{type(exc).__name__}: {exc}"
         row["total_s"] = time.perf_counter() - t0

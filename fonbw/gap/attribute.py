@@ -390,6 +390,10 @@ def decimate(records, q):
     return [Record.from_arrays(u=r.u[::q], y=r.y[::q], dt=r.dt * q, path=r.path) for r in records]
 
 
+def _nparams(effect):
+    return len(effect.names) + len(effect.lin_names)
+
+
 def _mse(records, preds):
     n = sum(len(r.y) for r in records)
     return float(sum(np.sum((r.y - p) ** 2) for r, p in zip(records, preds)) / n)
@@ -463,7 +467,7 @@ def _as_records(recs, what):
 
 def diagnose(train_records, validate_records, model=None, seed=0, progress=False, budget=1000,
              refit_evals=90, global_evals=320, coarse_rate=1000.0, effects=fx.EFFECTS, max_effects=3,
-             min_gap_closed=0.2, floor_tol=0.2, N=3, memory="fast"):
+             min_gap_closed=0.2, floor_tol=0.2, tie_margin=0.05, N=3, memory="fast"):
     """Diagnose the gap between the nominal FONBW model and measured records.
 
     Parameters
@@ -497,6 +501,9 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
         Part of the excess gap an effect must close to be material.
     floor_tol : float
         The gap is at the noise floor when MSE0 ≤ (1 + floor_tol) σ².
+    tie_margin : float
+        A passing effect with fewer parameters is preferred when it closes
+        at least the best one's gap_closed minus this margin.
     N : int
         Order of g(u) of the nominal model.
     memory : str
@@ -625,6 +632,12 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
         if not ok:
             break
         best = max(ok, key=lambda r: r["checks"]["gap_closed_step"])  # finite for passing ones
+        # parsimony: a block with fewer parameters that closes nearly as much
+        # (lags of delay, amplifier and resonance look alike at low frequency)
+        simpler = [r for r in ok if r["checks"]["gap_closed_step"] >= best["checks"]["gap_closed_step"] - tie_margin
+                   and _nparams(lib[r["i"]]) < _nparams(lib[best["i"]])]
+        if simpler:
+            best = min(simpler, key=lambda r: (_nparams(lib[r["i"]]), -r["checks"]["gap_closed_step"]))
         accepted.append(lib[best["i"]].name)
         current = {"fit": best["fit"], "eff": best["eff"], "idx": current["idx"] + [best["i"]],
                    "mse": best["mse"], "mse_tr": best["fit"]["rms"] ** 2, "pred": best["pv"]}

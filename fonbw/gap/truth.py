@@ -197,7 +197,7 @@ def _strength(name, s, rng_params):
         # the random walk adds ~5 % of the deterministic drift over 10 s
         return {"amp": a, "tau": p["tau"], "walk": 0.16 * a / p["tau"]}
     if name == "saturation":
-        return {"knee": p["ymax"] * (1.0 - 0.5 * s), "width": 0.3 + 2.0 * s}
+        return {"knee": p["ymax"] * (1.05 - 0.5 * s), "width": 0.3 + 2.0 * s}
     if name == "hum":
         return {"amp": 10 ** (-4 + 4 * s)}
     raise ValueError(name)
@@ -206,7 +206,8 @@ def _strength(name, s, rng_params):
 def calibrate(truth, inputs, name, target, rng):
     """Effect parameters whose magnitude on `inputs` is `target` noise stds (bisection)."""
     rp = {"zeta": float(rng.uniform(0.05, 0.3)), "slew_k": float(rng.choice([0.0, rng.uniform(0.3, 1.0)])),
-          "tau": float(rng.uniform(20, 200)), "ymax": float(truth.hyst.simulate(np.array([0.0, 120.0]), truth.dt)[-1])}
+          "tau": float(rng.uniform(20, 200)),
+          "ymax": max(float(np.max(truth.output(u, effects={}))) for _, u in inputs)}
     lo, hi = 0.0, 1.0
     m_hi = magnitude(truth, inputs, name, _strength(name, hi, rp))
     if m_hi < target:
