@@ -45,6 +45,14 @@ measurement of the same sample: at step k it gets ``r_{k-1}`` and the output
 after step k-1. The error of sample k is ``e_k = r_k - y_k``, ``y_k`` the
 measured output after step k (``t_{k+1}``).
 
+Limits: the libcosim master needs T to be a whole multiple of dt (no shorter
+final step); the FMU masters load the FMUs into the calling process, so the
+FMUs use that process's ``fonbw`` if it is already imported (see
+fmu_src/README.md; the FMUs' own bundled copy is tested by tests/test_fmu.py).
+Speed (BENCHMARKS.md, "Closed loop"): fmpy runs the 10 kHz loop faster than
+real time; libcosim is about 7x slower, as it steps the Python slaves on
+worker threads that must share the GIL.
+
 Units: u [V], y, r [µm], t [s].
 """
 from __future__ import annotations
@@ -632,17 +640,21 @@ class _FmpyBlock:
         s = FMU2Slave(guid=md.guid, unzipDirectory=str(unzip), modelIdentifier=self.identifier,
                       instanceName=role)
         s.instantiate(callbacks=cb, loggingOn=True)
-        s.setupExperiment(startTime=0.0)
-        s.enterInitializationMode()
-        for k, v in params.items():
-            if k not in vr:
-                raise CosimError(f"{fmu}: no parameter {k!r}")
-            if isinstance(v, str):
-                s.setString([vr[k].valueReference], [v])
-            else:
-                s.setReal([vr[k].valueReference], [float(v)])
-        s.exitInitializationMode()
         self.slave = s
+        try:
+            s.setupExperiment(startTime=0.0)
+            s.enterInitializationMode()
+            for k, v in params.items():
+                if k not in vr:
+                    raise CosimError(f"{fmu}: no parameter {k!r}")
+                if isinstance(v, str):
+                    s.setString([vr[k].valueReference], [v])
+                else:
+                    s.setReal([vr[k].valueReference], [float(v)])
+            s.exitInitializationMode()
+        except Exception:
+            self.close()  # not yet known to the caller: free it here
+            raise
         n = len(in_names)
         self._ivr = (fmi2ValueReference * n)(*[vr[x].valueReference for x in in_names])
         self._ival = (fmi2Real * n)()
