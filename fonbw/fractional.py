@@ -13,7 +13,13 @@ Engines (``memory=``):
 
 ``exact``
     the full GL sum of eq. (A1) with the weights of eq. (A2): ``a = dt^-λ``,
-    ``h_k = dt^-λ Σ_{j=1..k} w_j x_{k-j}``. O(k) per step; the reference.
+    ``h_k = dt^-λ Σ_{j=1..k} w_j x_{k-j}``. O(k) per step, O(N²) per run;
+    the reference, and the stepper's exact engine. Long batch runs use
+    :func:`blocked_solve` instead (Hairer, Lubich & Schlichte 1985): the
+    history of a finished block reaches the following block through one FFT
+    convolution, O(N log² N) per run, equal to the direct sum to round-off
+    (about 1e-13 of the output on the Table-1 model; the hysteresis models
+    switch to it from ``EXACT_BLOCKED_MIN`` steps).
 ``fast``
     the first K lags exactly, the older tail by M geometric modes. For
     0 < λ < 1 and j ≥ 1 the GL weights satisfy exactly
@@ -26,7 +32,19 @@ Engines (``memory=``):
     mode is updated recursively, so a step costs O(K + M) with fixed memory.
     The tail error ``E1 = Σ_{j>K} |w_j − ŵ_j|`` is computed per λ
     (:func:`tail_error`) and bounds the error of the history sum by
-    ``E1 · dt^-λ · max|x|``.
+    ``E1 · dt^-λ · max|x|``. The nodes span s ∈ [1e-9, 40/(K+1−λ)], and the
+    trapezoid nodes below 1e-9 are summed into the lowest one (without that,
+    small λ plateau at E1 ≈ 3e-8 over 1e5 lags, whatever M).
+
+    Defaults K = 32, M = 56 (modes are updated eight at a time, so M is a
+    multiple of 8). Measured (``benchmarks/bench_memory.py --sweep``): the
+    FONBW output with the Table-1 parameters on the eq.-19 input over 1e5
+    steps at dt = 1e-4 s differs from the exact engine by at most 8.8e-10
+    of max|y| over the grid λ1, λ2 ∈ {0.3, 0.4, …, 0.9, 0.9557, 0.99, 1},
+    worst at small λ1 (λ1 = 0.3, λ2 = 0.9); 6.2e-8 with M = 48 and 2.4e-6
+    with M = 40. E1 over 1e6 lags is 1.3e-10 at λ = 0.3 and 2.2e-11 at
+    λ = 0.622. A step of the whole FONBW model costs about 90–100 ns
+    (BENCHMARKS.md, "Memory engines").
 ``short``
     the short-memory principle: only the last L lags. Kept for comparison
     only: it is inaccurate (about 12 % error at L = 1000 for λ = 0.9), because
@@ -46,6 +64,10 @@ lag 1 vanish), so every model then reduces exactly to backward Euler.
 The compiled part is a handful of numba functions operating on plain arrays
 (an *operator*, see :class:`FracOp`), shared by the batch simulators, the
 population kernels of identification and the per-step steppers of the FMUs.
+The same compiled code runs in all of them and no floating-point operation
+is reordered by the compiler (no fastmath; the vector loops are written as
+explicit SIMD with a fixed summation order), so a stepper and a batch run
+give bit-identical numbers.
 """
 from __future__ import annotations
 
@@ -74,7 +96,7 @@ ENGINES = ("fast", "exact", "short", "oustaloup")
 
 #: Defaults of the fast engine: exact lags and number of geometric modes.
 FAST_K = 32
-FAST_M = 48
+FAST_M = 56
 #: Default window of the short-memory engine.
 SHORT_L = 1000
 #: Horizon over which :func:`tail_error` sums |w_j − ŵ_j| by default (lags).
@@ -170,12 +192,18 @@ def tail_modes(lam: float, K: int = FAST_K, M: int = FAST_M):
     s_hi = 40.0 / (K + 1.0 - lam)
     s_lo = 1e-9
     x = np.linspace(math.log(s_lo), math.log(s_hi), M)
-    hx = x[1] - x[0]
+    hx = x[1] - x[0] if M > 1 else math.log(s_hi / s_lo)
     s = np.exp(x)
     # (e^s - 1)^λ e^{-s(K)} computed in logs: e^s overflows for large s only in
     # principle, but expm1 keeps the small-s end accurate.
     logf = lam * np.log(np.expm1(s)) - s * K
     q = -(math.sin(math.pi * lam) / math.pi) * hx * s * np.exp(logf)
+    # The trapezoid nodes below s_lo, continued to -∞: there (e^s − 1)^λ ≈ s^λ
+    # and e^{-s j} ≈ e^{-s_lo j} for every lag j ≪ 1/s_lo, so they sum to a
+    # geometric series carried by the lowest node. Dropping it costs about
+    # j·s_lo^(1+λ) per lag: 4e-8 of E1 over 1e5 lags at λ = 0.3.
+    g = math.exp(-hx * (1.0 + lam))
+    q[0] += -(math.sin(math.pi * lam) / math.pi) * hx * s_lo ** (1.0 + lam) * g / (1.0 - g)
     return q, np.exp(-s)
 
 

@@ -98,8 +98,39 @@ def solve_bw(b, c1, c2, n, x0):
     return solve_bw_p(b, c1, c2, n, x0, -1.0)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def solve_bw_p(b, c1, c2, n, x0, p0):
+    """Root of F(x) = x − b + c1|x|^(n−1)x + c2|x|^n by safeguarded Newton
+    (:func:`solve_bw_full`), with its most common case inlined: F increasing
+    (c1 ≥ |c2|), the predictor ``x0`` inside the bracket with its power
+    ``p0`` known, and the first Newton step accepted. That case is exactly
+    the first iteration of the full solver, so the result is the same; any
+    other case is handed to it from the start.
+    """
+    lo = min(0.0, b)
+    hi = max(0.0, b)
+    if p0 >= 0.0 and lo < x0 < hi and c1 >= abs(c2) and math.isfinite(b) and math.isfinite(c1):
+        ax = abs(x0)
+        g = c1 + c2 if x0 >= 0.0 else c1 - c2
+        f = x0 - b + c1 * p0 * x0 + c2 * p0 * ax
+        if f == 0.0:
+            return x0
+        if f < 0.0:
+            lo = x0
+        else:
+            hi = x0
+        d = 1.0 + n * p0 * g
+        if d > 0.0:
+            xn = x0 - f / d
+            s = xn - x0
+            if lo <= xn <= hi and (xn > 0.0) == (x0 > 0.0) and \
+                    n * (n - 1.0) * abs(g) * p0 * s * s <= 2.0 * NEWTON_RTOL * d * ax * abs(xn):
+                return xn
+    return solve_bw_full(b, c1, c2, n, x0, p0)
+
+
+@nb.njit(cache=True)
+def solve_bw_full(b, c1, c2, n, x0, p0):
     """Root of F(x) = x − b + c1|x|^(n−1)x + c2|x|^n by safeguarded Newton.
 
     For c1 ≥ |c2| (σ ≥ 1/2, or β ≥ |γ| for CBW) F is increasing and the root
@@ -176,8 +207,9 @@ def solve_bw_p(b, c1, c2, n, x0, p0):
 # Packed layouts (one parameter block P and one state block S per model, so a
 # model crosses into compiled code as two arrays):
 #   FONBW  P = [kh, rho, sigma, n, N, ku(N), op1, op2]
-#          S = [u0, started, ħ_{k-1}, ħ_k, ħ_{k-2}, x0, |x0|^(n-1), op1 state, op2 state]
-#          (x0: Newton's start for the next step, see fonbw_predict)
+#          S = [u0, started, ħ_{k-1}, ħ_k, ħ_{k-2}, x0, |x0|^(n-1), c, op1 state, op2 state]
+#          (x0: Newton's start for the next step, c: steps since its power
+#          was computed exactly; see fonbw_predict)
 #   CBW    P = [ka, kb, D, A, beta, gamma, n]            S = [u_{k-1}, started, h_{k-1}, h_k]
 #   Zhu    P = [dt, k1, tau, A, beta, gamma, delta, n, x0, Φ(2x2), Γ(2)]
 #          S = [u_{k-1}, started, h_{k-1}, h_k, x−x0, v, k]
@@ -186,7 +218,7 @@ def solve_bw_p(b, c1, c2, n, x0, p0):
 # offset descriptors (plain numbers: no array views cross the calls).
 
 #: Start of the first operator's state block in a FONBW state block.
-FONBW_S0 = 7
+FONBW_S0 = 8
 
 
 @nb.njit(cache=True, inline="always")
@@ -195,22 +227,50 @@ def fonbw_views(P, S):
     o1 = 5 + N
     s1 = fr._sizes(P, o1)
     o2 = o1 + s1[3]
-    return (P, S, N, fr.op_desc(P, o1, FONBW_S0), fr.op_desc(P, o2, FONBW_S0 + s1[4]))
+    # binomial coefficients of (1 + d)^(n−1), for fonbw_predict
+    a = P[3] - 1.0
+    b2 = a * (a - 1.0) / 2.0
+    b3 = b2 * (a - 2.0) / 3.0
+    b4 = b3 * (a - 3.0) / 4.0
+    b5 = b4 * (a - 4.0) / 5.0
+    b6 = b5 * (a - 5.0) / 6.0
+    b7 = b6 * (a - 6.0) / 7.0
+    return (P, S, N, fr.op_desc(P, o1, FONBW_S0), fr.op_desc(P, o2, FONBW_S0 + s1[4]),
+            (a, b2, b3, b4, b5, b6, b7))
+
+
+#: Steps between exact powers in :func:`fonbw_predict` (bounds the drift of
+#: the series updates to a few ulps).
+POW_REFRESH = 32.0
+#: Largest relative move of the predictor updated by the binomial series
+#: (eight terms: truncation |b8| d^8 below 1e-19 for n ≤ 8).
+POW_SERIES_D = 2.0 ** -7
 
 
 @nb.njit(cache=True, inline="always")
-def fonbw_predict(P, S):
+def fonbw_predict(P, S, B):
     """Newton start for the step after the current one, and its power:
-    ``(x0, |x0|^(n−1))`` with x0 = 3ħ_{k−1} − 2ħ_{k−2} (linear extrapolation
-    two steps ahead).
+    ``(x0, |x0|^(n−1), counter)`` with x0 = 3ħ_{k−1} − 2ħ_{k−2` (linear
+    extrapolation two steps ahead).
 
-    Built from values known when step k begins, so the power (the costliest
-    operation of a step, ~25 ns of latency) runs alongside step k instead of
-    on the dependency chain from ħ_{k−1} to ħ_k; step k+1 then starts Newton
-    where the power is already known, and one Newton step is the rule.
+    Built from values known when step k begins, so it is off the dependency
+    chain from ħ_{k−1} to ħ_k, and step k+1 starts Newton where the power is
+    known: one Newton step is the rule. The power itself (a libm ``pow``
+    costs ~25 ns) is carried from the previous predictor x0' by the binomial
+    series p' (1 + d)^(n−1), d = x0/x0' − 1, while |d| ≤ 2^-7, and computed
+    afresh every ``POW_REFRESH`` steps, on larger moves and for the integer
+    orders that :func:`_powm1` does exactly; either way it is |x0|^(n−1) to
+    a few ulps.
     """
     xq = 3.0 * S[2] - 2.0 * S[4]
-    return xq, _powm1(abs(xq), P[3])
+    n = P[3]
+    if S[7] < POW_REFRESH and S[5] != 0.0 and S[1] != 0.0 and n != 1.0 and n != 2.0 and n != 3.0:
+        d = xq / S[5] - 1.0
+        if abs(d) <= POW_SERIES_D:
+            a, b2, b3, b4, b5, b6, b7 = B
+            ser = 1.0 + d * (a + d * (b2 + d * (b3 + d * (b4 + d * (b5 + d * (b6 + d * b7))))))
+            return xq, S[6] * ser, S[7] + 1.0
+    return xq, _powm1(abs(xq), n), 0.0
 
 
 @nb.njit(cache=True, inline="always")
@@ -226,12 +286,13 @@ def fonbw_solve(D1, h2, a2, P, S):
 
 
 @nb.njit(cache=True, inline="always")
-def fonbw_advance(S, hb, xq, pq):
+def fonbw_advance(S, hb, pred):
     """Commit ħ_k and the predictor of the next step (state layout above)."""
     S[4] = S[2]
     S[2] = hb
-    S[5] = xq
-    S[6] = pq
+    S[5] = pred[0]
+    S[6] = pred[1]
+    S[7] = pred[2]
 
 
 @nb.njit(cache=True, inline="always")
@@ -250,8 +311,8 @@ def fonbw_core(u, commit, V):
     Returns H(u_k) [µm]. With ``commit`` False nothing is stored (the
     compensator's trial evaluations); ħ_k is left in S[3] either way.
     """
-    P, S, N, d1, d2 = V
-    xq, pq = fonbw_predict(P, S)
+    P, S, N, d1, d2, B = V
+    pred = fonbw_predict(P, S, B)
     xk = u - (u if S[1] == 0.0 else S[0])
     D1 = d1[13] * xk + fr.op_history(P, S, d1)
     hb = fonbw_solve(D1, fr.op_history(P, S, d2), d2[13], P, S)
@@ -262,7 +323,7 @@ def fonbw_core(u, commit, V):
             S[1] = 1.0
         fr.op_push(P, S, d1, xk)
         fr.op_push(P, S, d2, hb)
-        fonbw_advance(S, hb, xq, pq)
+        fonbw_advance(S, hb, pred)
     return fonbw_output(u, hb, P, N)
 
 
@@ -276,22 +337,21 @@ def fonbw_exact_leaf(lo, hi, u, x1, h1, w2, hist2, P, S, hb, out):
     ``out``; returns the number of steps done (less than ``hi`` at the first
     non-finite output). S is a FONBW state block without operators.
     """
-    N = int(P[4])
-    o1 = 5 + N
-    a1 = P[o1 + 1]
-    a2 = P[o1 + fr._sizes(P, o1)[3] + 1]
+    _, _, N, d1, d2, B = fonbw_views(P, S)
+    a1 = d1[13]
+    a2 = d2[13]
     for k in range(lo, hi):
         acc = 0.0
         for j in range(lo, k):
             acc += w2[k - j] * hb[j]
-        xq, pq = fonbw_predict(P, S)
+        pred = fonbw_predict(P, S, B)
         D1 = a1 * x1[k] + h1[k]
         h = fonbw_solve(D1, hist2[k] + acc, a2, P, S)
         hb[k] = h
         out[k] = fonbw_output(u[k], h, P, N)
         S[1] = 1.0
         S[3] = h
-        fonbw_advance(S, h, xq, pq)
+        fonbw_advance(S, h, pred)
         if not math.isfinite(out[k]):
             return k
     return hi
