@@ -210,7 +210,7 @@ def test_table4_on_an_ideal_bench_and_the_plots(tmp_path):
     from fonbw.bench import Bench
 
     bench = Bench.ideal(seed=0)
-    models = {"NBW": MODELS["nbw"](), "CBW": MODELS["cbw"](), "Zhu": (zhu(), {"form": "eq22"})}
+    models = {"NBW": MODELS["nbw"](), "CBW": MODELS["cbw"](), "Zhu": zhu()}  # Zhu: eq. (22) form by default
     rows = C.table4(bench, models, out_dir=tmp_path, T=0.2)
     assert len(rows) == 3 * 2 * 2
     for r in rows:
@@ -225,6 +225,9 @@ def test_table4_on_an_ideal_bench_and_the_plots(tmp_path):
     u = C.compensate(models["CBW"], C.trajectory_5hz(np.arange(2000) * DT), DT).u
     row = next(r for r in rows if r["compensator"] == "CBW" and r["trajectory"] == "5-Hz")
     assert row["rms_input"] == pytest.approx(np.sqrt(np.mean(u**2)), rel=1e-12)
+    uz = C.compensate(zhu(), C.trajectory_5hz(np.arange(2000) * DT), DT, form="eq22").u
+    row = next(r for r in rows if r["compensator"] == "Zhu" and r["trajectory"] == "5-Hz")
+    assert row["rms_input"] == pytest.approx(np.sqrt(np.mean(uz**2)), rel=1e-12)
     for f in ("table4.csv", "table4_5_hz.png", "table4_multi_freq.png"):
         assert (tmp_path / f).stat().st_size > 0
     assert "paper" in C.format_table4(rows)
