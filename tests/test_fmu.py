@@ -10,9 +10,12 @@ Layout, and why:
   process would silently use the test process's imports, which hides a
   missing bundled file.  One driver process per master (fmpy, libcosim) runs
   all scenarios and writes arrays + a JSON report; the tests assert on those.
-* References come from a separate subprocess that imports this repository's
-  fonbw (the FMU side must use its bundled copy; that is checked too), and,
-  for the plant, from python-control in the test process.
+* References come from a separate subprocess that runs fonbw's batch
+  functions (simulate, compensate) on the fonbw sources bundled in the FMU,
+  imported without any FMU code: those are byte-identical to this
+  repository's fonbw/ at build time, and using them keeps a concurrent edit of
+  fonbw/ from racing the build (and shares numba's cache).  The plant's
+  reference is python-control in the test process.
 
 Sampling convention checked here (fmu_src/fonbw_fmu_common.py): with h = dt
 the FMU output at t_{k+1} is the library's y[k] = F(u[0..k]); the plant
@@ -25,7 +28,7 @@ import json
 import os
 import subprocess
 import sys
-import textwrap
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -76,9 +79,14 @@ def _run(args, cwd, timeout=600):
 REFERENCE = r'''
 import json, sys
 import numpy as np
-root, work = sys.argv[1], sys.argv[2]
-sys.path.insert(0, root)
+root, work, bundle = sys.argv[1], sys.argv[2], sys.argv[3]
+# fonbw as bundled in the FMU (byte-identical to this repository's fonbw/ at
+# build time), imported the way the FMU imports it, but without any FMU code
+sys.path.insert(0, bundle)
+from fonbw_fmu_common import use_bundled_fonbw
+use_bundled_fonbw(bundle)
 import fonbw
+assert not fonbw.__file__.startswith(root + "/fonbw/"), fonbw.__file__
 cfg = json.load(open(work + "/config.json"))
 sig = np.load(work + "/signals.npz")
 N, dt = cfg["N"], cfg["DT"]
@@ -369,8 +377,13 @@ def work(tmp_path_factory):
     (w / "config.json").write_text(json.dumps(dict(
         N=N, N_SHORT=N_SHORT, DT=DT, SET_PARAMS=SET_PARAMS, ALT_PARAMS=ALT_PARAMS,
         BAD_PARAMS=BAD_PARAMS, ENGINES=ENGINES, FREQS=FREQS, Y_SAT=Y_SAT)))
-    _run(["-c", REFERENCE, ROOT, w], cwd=w)
     _run([ROOT / "build_fmu.py", "-o", w / "default"], cwd=w)
+    # The references run the library sources the FMUs carry (not fonbw/ of the
+    # working tree, which may be edited while the tests run), via the FMU's own
+    # import path, which also lets them share numba's cache with the drivers.
+    with zipfile.ZipFile(w / "default" / "FonbwHysteresis.fmu") as z:
+        z.extractall(w / "bundle", [n for n in z.namelist() if n.startswith("resources/")])
+    _run(["-c", REFERENCE, ROOT, w, w / "bundle" / "resources"], cwd=w)
     _run([ROOT / "build_fmu.py", "--only", "hysteresis", "--params", w / "alt.json",
           "-o", w / "alt"], cwd=w)
     (w / "plant_ft.json").write_text(json.dumps(PLANT_FT))
