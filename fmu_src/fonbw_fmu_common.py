@@ -1,18 +1,19 @@
 """Shared plumbing of the fonbw FMUs (pythonfmu slaves). No numerics here.
 
 Everything numerical comes from the `fonbw` package, which the FMU carries in
-its resources folder (pythonfmu puts that folder first on sys.path when it
-instantiates the slave), so an FMU runs in a fresh Python process that has
-numpy/numba/scipy/control but no installed `fonbw`.
+its resources folder, so an FMU runs in a fresh Python process that has
+numpy/numba/scipy/control but no installed `fonbw` (use_bundled_fonbw below
+imports it from a digest-checked copy so that numba's cache can be reused).
 
 Why the slave methods never raise: pythonfmu's C layer turns any Python
 exception into fmi2Fatal *and* releases the Python slave object on the spot
 (`cleanPyObject`), so the next call on that instance (even fmi2FreeInstance)
 touches freed memory -- checked with pythonfmu 0.7.0 + fmpy: a slave raising
-in exit_initialization_mode segfaults the host at the following call.  A bad parameter must not be able to take the host down,
-so every entry point here catches, logs with an FMI status and reports through
-the channels that pythonfmu does offer: a log line with status fmi2Error at
-initialization, and fmi2Discard from fmi2DoStep (do_step returning False).
+in exit_initialization_mode segfaults the host at the following call.  A bad
+parameter must not be able to take the host down, so every entry point here
+catches, logs with an FMI status and reports through the channels pythonfmu
+does offer: a log line with status fmi2Error at initialization, and
+fmi2Discard from fmi2DoStep (do_step returning False).
 
 This module is imported by every fonbw FMU under the same name; FMUs built by
 one build_fmu.py run carry identical copies, so sharing it is harmless.
