@@ -148,7 +148,23 @@ def main(argv=None):
     ap.add_argument("--out", default="/tmp/blind_gap.jsonl")
     ap.add_argument("--budget", type=int, default=1000)
     ap.add_argument("--summary", metavar="JSONL", help="only summarize an existing run")
+    ap.add_argument("--timing", action="store_true",
+                    help="time one diagnosis on ~30 s of 5 kHz data (scenario durations x1.5)")
     ns = ap.parse_args(argv)
+    if ns.timing:
+        from fonbw.gap import diagnose
+        from fonbw.gap.truth import draw_scenario
+
+        sc = draw_scenario(ns.seed0, "single", scale=1.5)
+        n = sum(len(r.u) for r in sc["train"] + sc["validate"])
+        t0 = time.perf_counter()
+        res = diagnose(sc["train"], sc["validate"], seed=0, budget=ns.budget)
+        wall = time.perf_counter() - t0
+        print(f"{n} samples ({n * sc['train'][0].dt:.1f} s at {1 / sc['train'][0].dt:.0f} Hz), "
+              f"injected {list(sc['injected'])}, named {res['verdict']['effects']}: wall {wall:.0f} s "
+              f"(nominal {res['timing']['nominal_s']:.0f} s, attribution {res['timing']['attribute_s']:.0f} s); "
+              f"load average before/after: {os.getloadavg()[0]:.1f}")
+        return 0
     if ns.summary:
         print(summary(ns.summary))
         return 0

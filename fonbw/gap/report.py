@@ -111,7 +111,7 @@ def write_html(result, path):
     for c in result["candidates"]:
         ch = c.get("checks", {})
         bs = ch.get("bootstrap", {})
-        lo = ch.get("loro_ratio")
+        lo = (ch.get("loro") or {}).get("ratios")
         params = ", ".join(f"{k}={val:.4g}" for k, val in c["params"].items())
         rows.append(
             f"<tr><td>{esc(c['effect'])}</td><td>{c['gap_closed']:.3f}</td><td>{c['rms_validate']:.4g}</td>"
