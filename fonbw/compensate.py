@@ -893,11 +893,13 @@ def _write_table4(out_dir, rows, traces, t, tnames, mnames):
     for tname in tnames:
         fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
         Hd = traces[tname, mnames[0]][0]
-        a1.plot(t, Hd, "k--", lw=1.2, label="desired")
+        # desired on top; measured traces thin and translucent, so a
+        # chattering compensator does not hide the others
+        a1.plot(t, Hd, "k--", lw=1.2, label="desired", zorder=10)
         for m in mnames:
             y = traces[tname, m][1]
-            a1.plot(t, y, lw=0.8, label=f"{m}-based")
-            a2.plot(t, y - Hd, lw=0.8, label=f"{m}: RMS {_rms(y - Hd):.3f} µm")
+            a1.plot(t, y, lw=0.7, alpha=0.8, label=f"{m}-based")
+            a2.plot(t, y - Hd, lw=0.7, alpha=0.8, label=f"{m}: RMS {_rms(y - Hd):.3f} µm")
         a1.set_ylabel("displacement [µm]")
         a1.set_title(f"Feedforward compensation on the bench, {tname} trajectory")
         a1.legend(loc="upper right", fontsize=8)
