@@ -448,6 +448,12 @@ def _tol(tol):
     return tol
 
 
+def _max_iter(n):
+    if isinstance(n, bool) or int(n) != n or n < 1:
+        raise ValueError(f"max_iter must be a positive integer, got {n!r}")
+    return int(n)
+
+
 def _explicit_coeffs(model, explicit):
     """(ku, kh) of the explicit form u = (H_d − kh·x_(k−1) − Σ_(i≥2) ku_i u^i)/ku_1."""
     if isinstance(model, _hy.FONBW):
@@ -612,6 +618,7 @@ def compensate(model, Hd, dt, *, limits=DEFAULT_LIMITS, explicit=False, tol=DEFA
     dt = _hy._dt(dt)
     lo, hi = _limits(limits)
     tol = _tol(tol)
+    max_iter = _max_iter(max_iter)
     ku, kh = _explicit_coeffs(model, explicit)
     form = _form(model, form)
     n = len(Hd)
@@ -640,6 +647,11 @@ class Compensator:
     copy everything (model memory, previous voltage, slope estimate,
     counters) as one float64 array, for FMU rollback.
 
+    Parameters
+    ----------
+    model, dt, limits, explicit, tol, max_iter, form
+        As for :func:`compensate`.
+
     Attributes
     ----------
     status : int
@@ -660,7 +672,7 @@ class Compensator:
         self.dt = _hy._dt(dt)
         self.limits = _limits(limits)
         self.tol = _tol(tol)
-        self.max_iter = int(max_iter)
+        self.max_iter = _max_iter(max_iter)
         self.explicit = bool(explicit)
         self._ku, self._kh = _explicit_coeffs(model, explicit)
         self.form = _form(model, form)

@@ -177,6 +177,8 @@ def test_refusals():
         C.compensate(m, TRAJ["5hz"], 0.0)
     with pytest.raises(ValueError, match="tol"):
         C.compensate(m, TRAJ["5hz"], DT, tol=-1.0)
+    with pytest.raises(ValueError, match="max_iter"):
+        C.compensator(m, DT, max_iter=0)
     with pytest.raises(ValueError, match="Zhu2016"):
         C.compensate(zhu(), TRAJ["5hz"], DT, explicit=True)
     with pytest.raises(ValueError, match="cannot compensate"):
