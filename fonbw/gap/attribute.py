@@ -609,7 +609,7 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
             c_s = float(np.min(c))
         else:
             c_s = float(fitter.cost(np.asarray(start["x"])[None, :], eff,
-                                    [np.zeros((1, 0)) for _ in eff], yref_tr)[0])
+                                    [np.asarray(t, dtype=float)[None, :] for t in th_s], yref_tr)[0])
         c_c = float(fitter.cost(fc["x"][None, :], eff, [t[None, :] for t in fc["th"]], yref_tr)[0])
         x1, th1 = (fc["x"], fc["th"]) if c_c <= c_s else (np.asarray(start["x"]), th_s)
         fit = fitter.refit(eff, x1, th1, yref_tr, evals=refit_evals, seed=seed)
