@@ -13,20 +13,43 @@ Public contract (see the README)::
 """
 __version__ = "0.1.0"
 
-from .hysteresis import CBW, FONBW, NBW, Zhu2016, load_model, model_from_dict  # noqa: F401
-from .io import Record, read_record, write_csv  # noqa: F401
+
+def _numba_cache_dir():
+    """Key numba's on-disk cache on the sources of the whole package.
+
+    numba invalidates a cached function only when *its own* file changes, but
+    the kernels call (and inline) kernels of other modules: after an edit of
+    fractional.py a cached hysteresis or compensate kernel would silently run
+    the old code. A cache directory named by a hash of every source file of
+    the package makes any edit (or upgrade) start a fresh cache. An explicit
+    NUMBA_CACHE_DIR is respected.
+    """
+    import hashlib
+    import os
+
+    import numba
+
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return
+    here = os.path.dirname(os.path.abspath(__file__))
+    h = hashlib.sha256(numba.__version__.encode())
+    for root in (here, os.path.join(here, "gap")):
+        for name in sorted(os.listdir(root)):
+            if name.endswith(".py"):
+                with open(os.path.join(root, name), "rb") as fh:
+                    h.update(name.encode() + b"\0" + fh.read())
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    path = os.path.join(base, "fonbw", "numba-" + h.hexdigest()[:16])
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError:
+        return  # unwritable home: numba's default (beside the sources) is used
+    numba.config.CACHE_DIR = path
 
 
-def __getattr__(name):
-    # Heavier layers are imported on first use so `import fonbw` stays quick.
-    lazy = {
-        "identify": ("identify", "identify"),
-        "compensator": ("compensate", "compensator"),
-        "compensate": ("compensate", "compensate"),
-    }
-    if name in lazy:
-        import importlib
+_numba_cache_dir()
 
-        mod, attr = lazy[name]
-        return getattr(importlib.import_module(f".{mod}", __name__), attr)
-    raise AttributeError(f"module 'fonbw' has no attribute {name!r}")
+from .compensate import compensate, compensator  # noqa: E402,F401
+from .hysteresis import CBW, FONBW, NBW, Zhu2016, load_model, model_from_dict  # noqa: E402,F401
+from .identify import identify  # noqa: E402,F401
+from .io import Record, read_record, write_csv  # noqa: E402,F401
