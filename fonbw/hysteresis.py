@@ -102,14 +102,14 @@ def solve_bw(b, c1, c2, n, x0):
 def solve_bw_p(b, c1, c2, n, x0, p0):
     """Root of F(x) = x − b + c1|x|^(n−1)x + c2|x|^n by safeguarded Newton
     (:func:`solve_bw_full`), with its most common case inlined: F increasing
-    (c1 ≥ |c2|), the predictor ``x0`` inside the bracket with its power
+    (c1 ≥ |c2|), the predictor ``x0`` ≠ 0 in the bracket with its power
     ``p0`` known, and the first Newton step accepted. That case is exactly
     the first iteration of the full solver, so the result is the same; any
     other case is handed to it from the start.
     """
     lo = min(0.0, b)
     hi = max(0.0, b)
-    if p0 >= 0.0 and lo < x0 < hi and c1 >= abs(c2) and math.isfinite(b) and math.isfinite(c1):
+    if p0 >= 0.0 and lo <= x0 <= hi and x0 != 0.0 and c1 >= abs(c2) and math.isfinite(b) and math.isfinite(c1):
         ax = abs(x0)
         g = c1 + c2 if x0 >= 0.0 else c1 - c2
         f = x0 - b + c1 * p0 * x0 + c2 * p0 * ax
@@ -273,16 +273,36 @@ def fonbw_predict(P, S, B):
     return xq, _powm1(abs(xq), n), 0.0
 
 
+#: A predictor this close (relative) beyond the bracket end b is moved onto b
+#: with its power carried by three series terms (truncation below 1e-17).
+BRACKET_SNAP = 2.0 ** -15
+
+
 @nb.njit(cache=True, inline="always")
-def fonbw_solve(D1, h2, a2, P, S):
+def fonbw_solve(D1, h2, a2, P, S, B):
     """ħ_k of eq. (11) from D1 = D^λ1 u_k and the ħ-history h2 (D^λ2 ħ_k =
     a2 ħ_k + h2), Newton from the predictor stored by the previous step.
-    Shared by the step kernel and the blocked exact run."""
+    Shared by the step kernel and the blocked exact run.
+
+    On a loading branch (sign D1 = sign ħ) the σ terms cancel and the root
+    lies within ~1e-10 (relative) of the bracket end b, so the predictor
+    often falls just beyond it; it is then moved onto b, its power updated
+    by the series, instead of letting the solver start over from b with a
+    fresh ``pow``.
+    """
     rho = P[1]
     sigma = P[2]
     ia2 = 1.0 / a2
-    return solve_bw_p((rho * D1 - h2) * ia2, rho * sigma * abs(D1) * ia2, rho * (1.0 - sigma) * D1 * ia2, P[3],
-                      S[5], S[6] if S[1] != 0.0 else -1.0)
+    b = (rho * D1 - h2) * ia2
+    x0 = S[5]
+    p0 = S[6] if S[1] != 0.0 else -1.0
+    if p0 >= 0.0 and x0 != 0.0 and (x0 > b if b > 0.0 else x0 < b):
+        d = b / x0 - 1.0
+        if abs(d) <= BRACKET_SNAP:
+            a, b2, b3 = B[0], B[1], B[2]
+            p0 = p0 * (1.0 + d * (a + d * (b2 + d * b3)))
+            x0 = b
+    return solve_bw_p(b, rho * sigma * abs(D1) * ia2, rho * (1.0 - sigma) * D1 * ia2, P[3], x0, p0)
 
 
 @nb.njit(cache=True, inline="always")
@@ -315,7 +335,7 @@ def fonbw_core(u, commit, V):
     pred = fonbw_predict(P, S, B)
     xk = u - (u if S[1] == 0.0 else S[0])
     D1 = d1[13] * xk + fr.op_history(P, S, d1)
-    hb = fonbw_solve(D1, fr.op_history(P, S, d2), d2[13], P, S)
+    hb = fonbw_solve(D1, fr.op_history(P, S, d2), d2[13], P, S, B)
     S[3] = hb
     if commit:
         if S[1] == 0.0:
@@ -346,7 +366,7 @@ def fonbw_exact_leaf(lo, hi, u, x1, h1, w2, hist2, P, S, hb, out):
             acc += w2[k - j] * hb[j]
         pred = fonbw_predict(P, S, B)
         D1 = a1 * x1[k] + h1[k]
-        h = fonbw_solve(D1, hist2[k] + acc, a2, P, S)
+        h = fonbw_solve(D1, hist2[k] + acc, a2, P, S, B)
         hb[k] = h
         out[k] = fonbw_output(u[k], h, P, N)
         S[1] = 1.0
