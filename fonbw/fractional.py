@@ -512,10 +512,10 @@ def op_desc(P, o, q):
     """Descriptor of the operator with parameter block at ``P[o]`` and state
     block at ``S[q]``, built once per run (or once per stepper call).
 
-    Returns ``(kind, W, M, m, ow, oc, orr, oA, oB, oC, q, qb, qz, a)``: sizes,
-    offsets of w, c, r, A, B, C in P, of the counters, ring buffer and modes
-    in S (all unsigned), and the coefficient ``a`` of the current sample in
-    (*). The ring holds the newest sample at ``qb + pos`` and lag j at
+    Returns ``(kind, W, M, m, ow, oc, orr, oA, oB, oC, q, qb, qz, a, Wf)``:
+    sizes, offsets of w, c, r, A, B, C in P, of the counters, ring buffer and
+    modes in S (all unsigned), the coefficient ``a`` of the current sample in
+    (*), and W as a float (for comparing with the float counter). The ring holds the newest sample at ``qb + pos`` and lag j at
     ``qb + pos + j − 1`` with a mirrored copy behind, so the window is always
     contiguous.
     """
@@ -529,7 +529,7 @@ def op_desc(P, o, q):
     qb = q + 3
     qz = qb + 2 * max(W, 1)
     return (int(P[o]), _U(W), _U(M), _U(m), _U(ow), _U(oc), _U(orr), _U(oA), _U(oB), _U(oC),
-            _U(q), _U(qb), _U(qz), P[o + 1])
+            _U(q), _U(qb), _U(qz), P[o + 1], float(W))
 
 
 # Explicit SIMD for the two inner loops. Without fastmath LLVM vectorizes no
@@ -621,7 +621,7 @@ def _dot_off(a, ao, b, bo, n):
     """Σ_{j<n} a[ao+j] b[bo+j] (unsigned offsets): blocks of eight by
     :func:`_vdot8`, then the remainder in order."""
     nb8 = n >> _U(3)
-    s = _vdot8(a, ao, b, bo, nb8)
+    s = _vdot8(a, ao, b, bo, nb8) if nb8 > _U(0) else 0.0
     j = nb8 << _U(3)
     while j < n:
         s += a[ao + j] * b[bo + j]
@@ -647,20 +647,22 @@ def _modes_push(P, oc, orr, S, qz, M, old):
 @nb.njit(cache=True, inline="always")
 def op_history(P, S, d):
     """History part h_k of (*) from the state before step k (descriptor ``d``)."""
-    kind, W, M, m, ow, oc, orr, oA, oB, oC, q, qb, qz, a = d
+    kind, W, M, m, ow, oc, orr, oA, oB, oC, q, qb, qz, a, Wf = d
     if kind == KIND_GL:
+        # the counters are floats in S (one state array); they are converted
+        # through int64, which is one instruction, unlike float <-> uint64
         cnt = S[q + _U(1)]
-        n = W if cnt >= W else _U(cnt)
-        return _dot_off(P, ow, S, qb + _U(S[q]), n) + S[q + _U(2)]
+        n = W if cnt >= Wf else _U(int(cnt))
+        return _dot_off(P, ow, S, qb + _U(int(S[q])), n) + S[q + _U(2)]
     return S[q + _U(2)]
 
 
 @nb.njit(cache=True, inline="always")
 def op_push(P, S, d, x):
     """Advance the operator's state with the sample x_k (descriptor ``d``)."""
-    kind, W, M, m, ow, oc, orr, oA, oB, oC, q, qb, qz, a = d
+    kind, W, M, m, ow, oc, orr, oA, oB, oC, q, qb, qz, a, Wf = d
     if kind == KIND_GL:
-        pos = _U(S[q])
+        pos = _U(int(S[q]))
         if pos == _U(0):
             pos = W
         pos -= _U(1)
@@ -669,7 +671,7 @@ def op_push(P, S, d, x):
             S[q + _U(2)] = _modes_push(P, oc, orr, S, qz, M, S[qb + pos])
         S[qb + pos] = x
         S[qb + pos + W] = x
-        S[q] = pos
+        S[q] = float(nb.int64(pos))
     else:
         qt = qz + m  # scratch: z ← A z + B x needs the old z throughout
         for i in range(m):
