@@ -25,7 +25,7 @@ def test_dynamics_block_equals_python_control_simulation():
     x[0] = 0.0
     eff = fx.Dynamics(DT)
     y = eff.output_op(x[None, :], DT, (350.0, 0.12))[0]
-    sysd = ct.c2d(plant.mechanics(350.0, 0.12), DT, method="zoh")
+    sysd = ct.c2d(plant.mechanics(350.0, 0.12), DT, method="foh")
     ref = ct.forced_response(sysd, U=x).outputs
     assert np.max(np.abs(y - ref)) < 1e-10 * np.max(np.abs(ref))
 
@@ -72,9 +72,18 @@ def test_amplifier_block_filter_and_slew():
     assert v[-1] == pytest.approx(100.0, rel=1e-9)
 
 
+def test_dynamics_block_fast_resonance_is_nearly_identity():
+    x = np.r_[np.zeros(5), np.full(200, 10.0)]
+    eff = fx.Dynamics(DT)
+    y = eff.output_op(x, DT, (eff.bounds[0][1], 0.7))
+    assert np.max(np.abs(y - x)) < 0.3 * 10.0   # no whole-sample delay at the step
+    assert np.max(np.abs(y[20:] - 10.0)) < 1e-6
+
+
 def test_saturation_and_drift_blocks():
-    s = fx.Saturation(120.0)
-    np.testing.assert_array_equal(s.transform_input(np.array([0.0, 50.0, 110.0]), DT, (100.0,)), [0, 50, 100])
+    s = fx.Saturation(0.0, 20.0)
+    C = s.columns({"y_ref": np.array([0.0, 10.0, 18.0])}, (16.0,))
+    np.testing.assert_array_equal(C, [[0, 0], [0, 0], [2, 4]])
     d = fx.Drift()
     C = d.columns({"t": np.array([0.0, 10.0, 20.0])}, ())
     np.testing.assert_array_equal(C, [[0, 0], [1, 1], [2, 4]])

@@ -549,7 +549,8 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
     fitter_c = Fitter(coarse, space, N=N, memory=memory)
     U = max(float(np.max(np.abs(r.u))) for r in train)
     t_max = max(len(r.u) * dt for r in train + val)
-    lib = fx.library(dt, U, t_max, effects)
+    ys = np.concatenate([r.y for r in train])
+    lib = fx.library(dt, U, t_max, effects, y_range=(float(np.quantile(ys, 0.001)), float(np.quantile(ys, 0.999))))
     timing = {}
 
     # 1. nominal

@@ -6,7 +6,7 @@ adds a block to the nominal model and refits everything jointly. To keep that
 refit cheap every block is written in one of three forms, which compose:
 
 * **input side** — ``transform_input(u, dt, th)`` changes the voltage before
-  the hysteresis (amplifier, saturation); the hysteresis is simulated again;
+  the hysteresis (amplifier); the hysteresis is simulated again;
 * **linear output operator** — ``output_op(Y, dt, th)`` filters signals along
   their last axis (dynamics, delay). A linear time-invariant operator L
   commutes with the linear part of the model,
@@ -17,7 +17,8 @@ refit cheap every block is written in one of three forms, which compose:
   delays the output;
 * **additive regressors** — ``columns(ctx, th)`` adds signals whose gains are
   solved linearly (creep: first-order modes driven by the reference output of
-  the model; drift: powers of time, not input-driven).
+  the model; saturation: the part of that output above a knee; drift: powers
+  of time, not input-driven).
 
 Nonlinear parameters (``names``) are searched; linear ones (``lin_names``)
 are solved. Units: u [V], y [µm], t [s], frequencies [Hz].
@@ -152,7 +153,12 @@ class Dynamics(Effect):
     """Second-order mechanical resonance on the output (:func:`fonbw.plant.mechanics`).
 
     G(s) = ωn²/(s² + 2ζωn s + ωn²), ωn = 2π f_res, unit DC gain, discretized
-    with zero-order hold by python-control once per parameter pair.
+    by python-control with a first-order hold once per parameter pair. The
+    hold keeps a direct feedthrough, so a fast resonance tends to the
+    identity; a zero-order hold would add a whole sample of delay at any
+    f_res, which on records with steps costs more than the resonance gains.
+    f_res may exceed the Nyquist frequency (up to 5 fs/2): that is how the
+    block switches itself off.
     """
 
     name = "dynamics"
@@ -162,20 +168,19 @@ class Dynamics(Effect):
     def __init__(self, dt):
         super().__init__()
         fn = 0.5 / dt
-        self.bounds = [(fn / 100.0, 0.9 * fn), (0.02, 2.0)]
+        self.bounds = [(fn / 100.0, 5.0 * fn), (0.02, 2.0)]
         self.log_scale = [True, True]
-        f = np.geomspace(fn / 100.0, 0.9 * fn, 12)
+        f = np.geomspace(fn / 100.0, 5.0 * fn, 12)
         z = np.array([0.05, 0.15, 0.4, 1.0])
         self.grid = np.array([(a, b) for a in f for b in z])
 
     @staticmethod
     @functools.lru_cache(maxsize=4096)
     def _coeffs(f, zeta, dt):
-        sysd = ct.c2d(_plant.mechanics(f, zeta), dt, method="zoh")
+        sysd = ct.c2d(_plant.mechanics(f, zeta), dt, method="foh")
         num = np.atleast_1d(np.squeeze(sysd.num[0][0]))
         den = np.atleast_1d(np.squeeze(sysd.den[0][0]))
-        # python-control's numerator omits leading zeros (strictly proper);
-        # lfilter reads coefficients of z^0, z^-1, ..., so align the degrees
+        # lfilter reads coefficients of z^0, z^-1, ...: align the degrees
         num = np.concatenate([np.zeros(len(den) - len(num)), num])
         return num, den
 
@@ -260,25 +265,34 @@ class Amplifier(Effect):
 
 
 class Saturation(Effect):
-    """Voltage saturation: the input is clipped at u_sat [V] (amplifier rail or stroke limit)."""
+    """Stroke saturation: the displacement is compressed above a knee y_k [µm].
+
+    y = H + c1 (H_ref − y_k)_+ + c2 (H_ref − y_k)_+², (x)_+ = max(x, 0),
+    with c1, c2 solved linearly (negative for a limit) and the knee searched;
+    driven by the nominal output like creep. A knee at the top of the
+    training range switches the block off.
+    """
 
     name = "saturation"
-    names = ("u_sat",)
-    units = {"u_sat": "V"}
-    input_side = True
+    names = ("knee",)
+    lin_names = ("c1", "c2_per_um")
+    units = {"knee": "µm", "c1": "1", "c2_per_um": "1/µm"}
 
-    def __init__(self, U):
+    def __init__(self, y_lo, y_hi):
         super().__init__()
-        self.bounds = [(0.5 * U, 1.02 * U)]
+        span = max(y_hi - y_lo, 1e-9)
+        self.bounds = [(y_lo + 0.3 * span, y_hi)]
         self.log_scale = [False]
-        self.grid = np.linspace(0.6 * U, 1.01 * U, 10)[:, None]
+        self.grid = np.linspace(y_lo + 0.35 * span, y_hi - 0.02 * span, 10)[:, None]
 
-    def transform_input(self, u, dt, th):
-        return np.minimum(u, float(th[0]))
+    def columns(self, ctx, th):
+        e = np.maximum(ctx["y_ref"] - float(th[0]), 0.0)
+        return np.column_stack([e, e * e])
 
 
-def library(dt, U, t_max, names=EFFECTS):
-    """The candidate blocks for records with step `dt` [s], max |u| `U` [V], longest record `t_max` [s].
+def library(dt, U, t_max, names=EFFECTS, y_range=(0.0, 1.0)):
+    """The candidate blocks for records with step `dt` [s], max |u| `U` [V], longest
+    record `t_max` [s] and measured displacements within `y_range` [µm].
 
     Parameters are in physical units, so the same blocks act on records
     decimated for the global search (the blocks read the records' own step).
@@ -289,7 +303,7 @@ def library(dt, U, t_max, names=EFFECTS):
         "amplifier": lambda: Amplifier(dt, U),
         "delay": lambda: Delay(dt),
         "drift": lambda: Drift(),
-        "saturation": lambda: Saturation(U),
+        "saturation": lambda: Saturation(*y_range),
     }
     out = []
     for n in names:

@@ -9,16 +9,16 @@ effect         truth (here)                               candidate block (effec
 =============  =========================================  ===========================================
 creep          logarithmic creep, γ per decade: 12 modes   4 fixed modes 0.01…10 s, implicit Euler,
                τ = 1 ms … 100 s, Tustin, on the output     gains solved
-dynamics       ωn²/(s²+2ζωn s+ωn²) by scipy lsim           python-control ZOH filter
-               (first-order hold of the input)
+dynamics       two modes: 0.9 at (f_res, ζ) and 0.1 at      one mode, python-control c2d (FOH)
+               (3.3 f_res, 0.05), scipy lsim
 amplifier      fonbw.bench chain: slew limit on the        RC stage whose rate is clipped
                command, then python-control RC pole (ZOH)  (implicit step)
 delay          continuous transport delay of the input,    output delay, linear interpolation
                cubic-spline interpolation
 drift          A (1 − e^(−t/τ_th)) + integrated random     (t/10 s), (t/10 s)² shared by records
                walk per record
-saturation     smooth stroke limit (tanh knee) on the      clip of the input voltage
-               displacement
+saturation     smooth stroke limit (tanh knee) on the      (H − knee)_+ and its square, gains
+               displacement                                solved
 hum            50 Hz + 150 Hz mains pickup, random phase   none: outside the library
 =============  =========================================  ===========================================
 
@@ -145,8 +145,12 @@ class Truth:
         if "dynamics" in eff:
             wn = 2 * math.pi * eff["dynamics"]["f_res"]
             z = eff["dynamics"]["zeta"]
-            sys = signal.lti([wn * wn], [1.0, 2 * z * wn, wn * wn])
-            _, yy, _ = signal.lsim(sys, y - y[0], t)
+            w2 = 3.3 * wn
+            # a main mode and a weaker second one (a stage on a stack)
+            num = np.polyadd(0.9 * wn * wn * np.array([1.0, 2 * 0.05 * w2, w2 * w2]),
+                             0.1 * w2 * w2 * np.array([1.0, 2 * z * wn, wn * wn]))
+            den = np.polymul([1.0, 2 * z * wn, wn * wn], [1.0, 2 * 0.05 * w2, w2 * w2])
+            _, yy, _ = signal.lsim(signal.lti(num, den), y - y[0], t)
             y = yy + y[0]
         if "drift" in eff:
             p = eff["drift"]
