@@ -285,7 +285,7 @@ def oustaloup_ss(lam: float, dt: float, N: int = 5, wb: float = 0.01, wh: float 
 
 #: Leaf block of :func:`blocked_solve`: blocks this short sum their own
 #: history terms directly (cheaper than an FFT below a few hundred lags).
-EXACT_LEAF = 256
+EXACT_LEAF = 512
 
 
 def blocked_solve(w, x, leaf, leaf_size: int = EXACT_LEAF) -> int:

@@ -348,22 +348,25 @@ def fonbw_core(u, commit, V):
 
 
 @nb.njit(cache=True)
-def fonbw_exact_leaf(lo, hi, u, x1, h1, w2, hist2, P, S, hb, out):
+def fonbw_exact_leaf(lo, hi, u, x1, h1, wr, hist2, P, S, hb, out):
     """Steps [lo, hi) of FONBW with exact GL sums supplied from outside.
 
     ``h1[k]`` is the complete u-side history and ``hist2[k]`` the ħ-side
     history of the steps before ``lo`` (:func:`fonbw.fractional.blocked_solve`);
-    the ħ terms of [lo, k) are summed here. Writes ħ into ``hb`` and H into
-    ``out``; returns the number of steps done (less than ``hi`` at the first
-    non-finite output). S is a FONBW state block without operators.
+    the ħ terms of [lo, k) are summed here, with the ħ-side weights reversed,
+    ``wr[t] = w2[L − t]`` (L = len(wr) − 1 ≥ hi − lo), so that the sum is a
+    forward dot product (the SIMD one of the memory kernels). Writes ħ into
+    ``hb`` and H into ``out``; returns the number of steps done (less than
+    ``hi`` at the first non-finite output). S is a FONBW state block without
+    operators.
     """
     _, _, N, d1, d2, B = fonbw_views(P, S)
     a1 = d1[13]
     a2 = d2[13]
+    L = wr.shape[0] - 1
     for k in range(lo, hi):
-        acc = 0.0
-        for j in range(lo, k):
-            acc += w2[k - j] * hb[j]
+        r = k - lo
+        acc = fr._dot_off(wr, fr._U(L - r), hb, fr._U(lo), fr._U(r))
         pred = fonbw_predict(P, S, B)
         D1 = a1 * x1[k] + h1[k]
         h = fonbw_solve(D1, hist2[k] + acc, a2, P, S, B)
@@ -900,8 +903,13 @@ def _simulate_exact_blocked(model, u, dt, return_state):
     hb = np.zeros(n)
     out = np.empty(n)
 
+    L = fr.EXACT_LEAF
+    wr = np.zeros(L + 1)
+    wr[:min(n, L + 1)] = w2[:L + 1]
+    wr = wr[::-1].copy()  # wr[t] = w2[L - t]
+
     def leaf(lo, hi, hist2):
-        return fonbw_exact_leaf(lo, hi, u, x1, h1, w2, hist2, P, S, hb, out)
+        return fonbw_exact_leaf(lo, hi, u, x1, h1, wr, hist2, P, S, hb, out)
 
     done = fr.blocked_solve(w2, hb, leaf)
     out[done:] = math.nan
