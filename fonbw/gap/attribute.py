@@ -531,7 +531,7 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
     """
     import sys
 
-    from .. import identify as ident
+    from ..identify import identify, search_space  # the module, not fonbw.identify (the function)
 
     t_start = time.perf_counter()
     train = _as_records(train_records, "training")
@@ -542,7 +542,7 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
             raise ValueError(f"diagnose: record {r.path} has dt = {r.dt} s, the first training record {dt} s; "
                              "all records need one sampling period")
     say = (lambda *a: print("[diagnose]", *a, file=sys.stderr, flush=True)) if progress else (lambda *a: None)
-    space = ident.search_space(KIND, train, N=N)
+    space = search_space(KIND, train, N=N)
     fitter = Fitter(train, space, N=N, memory=memory)
     q = max(1, int(round(1.0 / (coarse_rate * dt))))
     coarse = decimate(train, q)
@@ -557,7 +557,7 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
     t0 = time.perf_counter()
     given = None
     if model is None:
-        res = ident.identify(coarse, KIND, seed=seed, max_evals=int(budget), N=N, memory=memory)
+        res = identify(coarse, KIND, seed=seed, max_evals=int(budget), N=N, memory=memory)
         x0 = np.asarray(res.search["x"], dtype=float)
     else:
         if getattr(model, "kind", None) not in ("fonbw", "nbw"):
