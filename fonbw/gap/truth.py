@@ -9,8 +9,8 @@ effect         truth (here)                               candidate block (effec
 =============  =========================================  ===========================================
 creep          logarithmic creep, γ per decade: 12 modes   4 fixed modes 0.01…10 s, implicit Euler,
                τ = 1 ms … 100 s, Tustin, on the output     gains solved
-dynamics       two modes: 0.9 at (f_res, ζ) and 0.1 at      one mode, python-control c2d (FOH)
-               (3.3 f_res, 0.05), scipy lsim
+dynamics       two modes: 0.96 at (f_res, ζ) and 0.04 at    one mode, python-control c2d (FOH)
+               (3.3 f_res, 0.1), scipy lsim
 amplifier      fonbw.bench chain: slew limit on the        RC stage whose rate is clipped
                command, then python-control RC pole (ZOH)  (implicit step)
 delay          continuous transport delay of the input,    output delay, linear interpolation
@@ -147,9 +147,9 @@ class Truth:
             z = eff["dynamics"]["zeta"]
             w2 = 3.3 * wn
             # a main mode and a weaker second one (a stage on a stack)
-            num = np.polyadd(0.9 * wn * wn * np.array([1.0, 2 * 0.05 * w2, w2 * w2]),
-                             0.1 * w2 * w2 * np.array([1.0, 2 * z * wn, wn * wn]))
-            den = np.polymul([1.0, 2 * z * wn, wn * wn], [1.0, 2 * 0.05 * w2, w2 * w2])
+            num = np.polyadd(0.96 * wn * wn * np.array([1.0, 2 * 0.1 * w2, w2 * w2]),
+                             0.04 * w2 * w2 * np.array([1.0, 2 * z * wn, wn * wn]))
+            den = np.polymul([1.0, 2 * z * wn, wn * wn], [1.0, 2 * 0.1 * w2, w2 * w2])
             _, yy, _ = signal.lsim(signal.lti(num, den), y - y[0], t)
             y = yy + y[0]
         if "drift" in eff:
