@@ -896,9 +896,9 @@ def _simulate_exact_blocked(model, u, dt, return_state):
     w1 = fr.gl_weights(model.lam1, n) * dt ** (-model.lam1)
     w2 = fr.gl_weights(model.lam2, n) * dt ** (-model.lam2)
     # u is explicit: its whole history sum is one FFT convolution (lags ≥ 1)
-    L = sfft.next_fast_len(2 * n - 1, real=True)
+    nfft = sfft.next_fast_len(2 * n - 1, real=True)
     w1[0] = 0.0
-    h1 = sfft.irfft(sfft.rfft(x1, L) * sfft.rfft(w1, L), L)[:n]
+    h1 = sfft.irfft(sfft.rfft(x1, nfft) * sfft.rfft(w1, nfft), nfft)[:n]
     S = np.zeros(FONBW_S0)
     hb = np.zeros(n)
     out = np.empty(n)
