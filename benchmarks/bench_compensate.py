@@ -26,7 +26,9 @@ import time
 import numpy as np
 
 import fonbw
-from fonbw import compensate as C
+import importlib
+
+C = importlib.import_module("fonbw.compensate")  # fonbw.compensate is the function
 
 DT = 1e-4
 WN, ZETA = 2 * np.pi * 1500.0, 0.7

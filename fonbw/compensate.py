@@ -79,8 +79,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import sys
-import types
 
 import numba as nb
 import numpy as np
@@ -968,15 +966,3 @@ def reproduce_table4(out_dir=None, *, seed=0, max_evals=3000, T=2.0, models=None
         for name, m in models.items():
             m.save(os.path.join(out_dir, f"model_{name.lower()}.json"))
     return table4(bench, models, bench.dt, out_dir, T=T)
-
-
-# `import fonbw.compensate` (or any import of this module) binds the module as
-# the package attribute `fonbw.compensate`, shadowing the function of the same
-# name that fonbw's lazy __getattr__ hands out. Calling the module calls the
-# function, so `fonbw.compensate(model, Hd, dt)` works whichever is bound.
-class _CallableModule(types.ModuleType):
-    def __call__(self, *args, **kwargs):
-        return compensate(*args, **kwargs)
-
-
-sys.modules[__name__].__class__ = _CallableModule

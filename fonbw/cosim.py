@@ -294,12 +294,9 @@ class LoopController:
 
 
 def _compensator(model, dt):
-    try:
-        from . import compensate
-    except ImportError as e:
-        raise CosimError("modes ff and ff+fb need fonbw.compensator (fonbw/compensate.py), "
-                         f"which is not available in this checkout: {e}") from None
-    return compensate.compensator(model, dt)
+    from .compensate import compensator
+
+    return compensator(model, dt)
 
 
 # ---------------------------------------------------------------------------
