@@ -25,11 +25,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-# Import scipy before loading any FMU: in processes where the FMU's fonbw import
-# was the first to load scipy (and its bundled libgfortran), 2-3 runs in 10
-# aborted at exit with "corrupted double-linked list" inside libgfortran's exit
-# handler after fmi2FreeInstance; never when scipy came first (fmu_src/README.md).
-import scipy.linalg  # noqa: F401
 
 ROOT = Path(__file__).resolve().parents[1]
 DT = 1e-4

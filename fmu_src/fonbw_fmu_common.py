@@ -47,6 +47,14 @@ STEP_MULTIPLE_TOL = 1e-6
 
 MEMORY_ENGINES = ("fast", "exact", "short", "oustaloup")
 
+# Steppers of freed instances, kept until the interpreter exits.  Workaround:
+# when a fonbw stepper was destroyed inside fmi2FreeInstance, 3-6 host processes
+# in 10 aborted at exit with "corrupted double-linked list" (in the exit handler
+# of scipy's bundled libgfortran); kept alive, 0 in 10.  Root cause not found
+# (a plain process deleting a stepper does not abort).  Cost: the memory of the
+# retired steppers (KB for the fast engine, the run's history for 'exact').
+_RETIRED: List[Any] = []
+
 # SI base-unit exponents of the unit symbols used by these FMUs.  Unit names are
 # written like "um/V2" (micrometre per volt squared): a product of symbols with
 # optional integer powers, an optional single "/" for the denominator.
@@ -208,6 +216,16 @@ class FonbwSlaveBase(Fmi2Slave):
         self._restoring = False      # True while fmi2SetFMUstate writes parameters
         self.dt = 1e-4
 
+    def __del__(self):
+        # runs inside pythonfmu's fmi2FreeInstance / fmi2Reset: see _RETIRED
+        self._drop_stepper()
+
+    def _drop_stepper(self):
+        """Forget the current stepper without destroying it (see _RETIRED)."""
+        if getattr(self, "_stepper", None) is not None:
+            _RETIRED.append(self._stepper)
+        self._stepper = None
+
     # ---- registration helpers ------------------------------------------------
     def _fixed_setter(self, name: str, cast):
         """Setter of a 'fixed' parameter: once the stepper is built, a new value
@@ -310,10 +328,11 @@ class FonbwSlaveBase(Fmi2Slave):
         except Exception as e:  # anything else: say so, do not blame the parameters
             what, problems = "cannot build the model", [f"{type(e).__name__}: {e}"]
         if problems:
-            self._stepper = None
+            self._drop_stepper()
             self._fault = f"{what}: " + "; ".join(problems)
             self.log(f"{self.instance_name}: {self._fault}", Fmi2Status.error)
             return False
+        self._drop_stepper()
         self._stepper = stepper
         self._built_from = self._params_snapshot()
         self._fault = None
@@ -350,7 +369,7 @@ class FonbwSlaveBase(Fmi2Slave):
                 self._x_out = float(y)
         except Exception as e:
             # the stepper may be half-way through the step: refuse further steps
-            self._stepper = None
+            self._drop_stepper()
             self._fault = f"doStep at t={current_time!r} failed: {type(e).__name__}: {e}"
             self.log(f"{self.instance_name}: {self._fault}", Fmi2Status.error)
             return False
@@ -377,7 +396,7 @@ class FonbwSlaveBase(Fmi2Slave):
             self._x_out = float(state.get(self._out_name, 0.0))
             arr = state.get("__stepper__")
             if arr is None:
-                self._stepper = None
+                self._drop_stepper()
                 self._fault = state.get("__fault__") or "restored state has no stepper"
                 return
             if self._stepper is None or self._built_from != self._params_snapshot():
@@ -386,7 +405,7 @@ class FonbwSlaveBase(Fmi2Slave):
             self._stepper.set_state(np.asarray(arr, dtype=np.float64))
             self._fault = None
         except Exception as e:
-            self._stepper = None
+            self._drop_stepper()
             self._fault = f"FMU state could not be restored: {type(e).__name__}: {e}"
             self.log(f"{self.instance_name}: {self._fault}", Fmi2Status.error)
 

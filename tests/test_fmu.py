@@ -120,7 +120,6 @@ np.savez(work + "/reference.npz", **out)
 FMPY_DRIVER = r'''
 import importlib.util, json, sys, traceback
 import numpy as np
-import scipy.linalg  # before any FMU: avoids a known abort at exit (fmu_src/README.md)
 from fmpy import extract, read_model_description, simulate_fmu
 from fmpy.simulation import instantiate_fmu
 from fmpy.fmi1 import FMICallException
@@ -314,7 +313,6 @@ print("driver done")
 COSIM_DRIVER = r'''
 import json, sys
 import numpy as np
-import scipy.linalg  # before any FMU: avoids a known abort at exit (fmu_src/README.md)
 from libcosimpy.CosimExecution import CosimExecution
 from libcosimpy.CosimSlave import CosimLocalSlave
 from libcosimpy.CosimManipulator import CosimManipulator
