@@ -43,7 +43,6 @@ REL_TOL = 1e-10
 SET_PARAMS = {"lam1": 0.9, "lam2": 0.8, "kh": -2.5e4}
 # Parameter changes of the second build (--params), loaded next to the default
 ALT_PARAMS = {"lam2": 0.7, "sigma": 5.0e4, "n": 1.5}
-# Each refused parameter set: name -> value (the name must appear in the log)
 ENGINES = ["fast", "exact", "short", "oustaloup"]
 FREQS = [0.0, 20.0, 500.0, 1500.0, 5000.0]  # Hz, plant transfer-function check
 # Desired displacements with unreachable stretches (um), for the compensator status
@@ -53,6 +52,7 @@ PLANT_FT = {"kind": "linear_plant", "description": "test plant with feedthrough"
             "input": {"name": "v", "unit": "V", "description": "test input"},
             "output": {"name": "w", "unit": "um/V", "description": "test output"},
             "A": [[-100.0]], "B": [[100.0]], "C": [[0.5]], "D": [[0.5]], "sys_dt": None}
+# Each refused parameter: (name, value); the name must appear in the log lines
 BAD_PARAMS = [("lam1", 1.5), ("n", 0.5), ("dt", -1e-4), ("kh", float("nan")),
               ("rho", -1.0), ("memory", "bogus")]
 
