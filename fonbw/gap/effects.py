@@ -267,16 +267,18 @@ class Amplifier(Effect):
 class Saturation(Effect):
     """Stroke saturation: the displacement is compressed above a knee y_k [µm].
 
-    y = H + c1 (H_ref − y_k)_+ + c2 (H_ref − y_k)_+², (x)_+ = max(x, 0),
-    with c1, c2 solved linearly (negative for a limit) and the knee searched;
-    driven by the nominal output like creep. A knee at the top of the
-    training range switches the block off.
+    y = H + c (H_ref − y_k)_+, (x)_+ = max(x, 0): the slope above the knee
+    changes by the factor 1 + c (c < 0 for a limit), c solved linearly, the
+    knee searched; driven by the nominal output like creep. One straight
+    segment extrapolates sanely to displacements the training records did not
+    reach (a quadratic bends back). A knee at the top of the training range
+    switches the block off.
     """
 
     name = "saturation"
     names = ("knee",)
-    lin_names = ("c1", "c2_per_um")
-    units = {"knee": "µm", "c1": "1", "c2_per_um": "1/µm"}
+    lin_names = ("c",)
+    units = {"knee": "µm", "c": "1"}
 
     def __init__(self, y_lo, y_hi):
         super().__init__()
@@ -286,8 +288,7 @@ class Saturation(Effect):
         self.grid = np.linspace(y_lo + 0.35 * span, y_hi - 0.02 * span, 10)[:, None]
 
     def columns(self, ctx, th):
-        e = np.maximum(ctx["y_ref"] - float(th[0]), 0.0)
-        return np.column_stack([e, e * e])
+        return np.maximum(ctx["y_ref"] - float(th[0]), 0.0)[:, None]
 
 
 def library(dt, U, t_max, names=EFFECTS, y_range=(0.0, 1.0)):

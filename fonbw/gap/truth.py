@@ -17,8 +17,8 @@ delay          continuous transport delay of the input,    output delay, linear 
                cubic-spline interpolation
 drift          A (1 − e^(−t/τ_th)) + integrated random     (t/10 s), (t/10 s)² shared by records
                walk per record
-saturation     smooth stroke limit (tanh knee) on the      (H − knee)_+ and its square, gains
-               displacement                                solved
+saturation     smooth stroke limit (tanh knee) on the      slope change c (H − knee)_+, c solved
+               displacement
 hum            50 Hz + 150 Hz mains pickup, random phase   none: outside the library
 =============  =========================================  ===========================================
 
