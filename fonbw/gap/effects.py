@@ -157,8 +157,8 @@ class Dynamics(Effect):
     hold keeps a direct feedthrough, so a fast resonance tends to the
     identity; a zero-order hold would add a whole sample of delay at any
     f_res, which on records with steps costs more than the resonance gains.
-    f_res may exceed the Nyquist frequency (up to 5 fs/2): that is how the
-    block switches itself off.
+    f_res may exceed the Nyquist frequency (up to 1000 fs/2): that is how
+    the block switches itself off.
     """
 
     name = "dynamics"
@@ -168,9 +168,9 @@ class Dynamics(Effect):
     def __init__(self, dt):
         super().__init__()
         fn = 0.5 / dt
-        self.bounds = [(fn / 100.0, 5.0 * fn), (0.02, 2.0)]
+        self.bounds = [(fn / 100.0, 1000.0 * fn), (0.02, 2.0)]
         self.log_scale = [True, True]
-        f = np.geomspace(fn / 100.0, 5.0 * fn, 12)
+        f = np.r_[np.geomspace(fn / 100.0, 5.0 * fn, 12), 1000.0 * fn]
         z = np.array([0.05, 0.15, 0.4, 1.0])
         self.grid = np.array([(a, b) for a in f for b in z])
 
@@ -251,10 +251,12 @@ class Amplifier(Effect):
     def __init__(self, dt, U):
         super().__init__()
         fn = 0.5 / dt
-        self.bounds = [(fn / 500.0, 2.0 * fn), (U / 0.1, U / (2 * dt))]
+        # the upper corner (f_c = fs, a full-range step in a tenth of a
+        # sample) is the block switched off
+        self.bounds = [(fn / 500.0, 2.0 * fn), (U / 0.1, 10.0 * U / dt)]
         self.log_scale = [True, True]
         f = np.geomspace(fn / 500.0, 2.0 * fn, 10)
-        s = np.geomspace(U / 0.1, U / (2 * dt), 4)
+        s = np.geomspace(U / 0.1, 10.0 * U / dt, 4)
         self.grid = np.array([(a, b) for a in f for b in s])
 
     def transform_input(self, u, dt, th):
