@@ -115,7 +115,7 @@ def write_html(result, path):
         params = ", ".join(f"{k}={val:.4g}" for k, val in c["params"].items())
         rows.append(
             f"<tr><td>{esc(c['effect'])}</td><td>{c['gap_closed']:.3f}</td><td>{c['rms_validate']:.4g}</td>"
-            f"<td>{ch.get('delta_bic', math.nan):.4g}</td><td>{bs.get('p05', float('nan')):.3f}</td>"
+            f"<td>{ch.get('delta_bic', math.nan):.4g}</td><td>{bs.get('p10', float('nan')):.3f}</td>"
             f"<td>{esc(', '.join(f'{q:.2f}' for q in lo)) if lo else '–'}</td>"
             f"<td>{'yes' if c['accepted'] else 'no'}</td><td>{esc(params)}</td></tr>")
     recs = "".join(
@@ -139,7 +139,7 @@ noise floor σ = {nom['noise_floor']:.4g} µm.</p>
 <img src="{figs['spectrum_time']}" alt="residual spectrum and RMS versus time">
 <img src="{figs['features']}" alt="residual versus rate, amplitude, branch, time since reversal">
 <h2>Candidates (each refit jointly with the nominal model)</h2>
-<table><tr><th>effect</th><th>gap closed</th><th>val. RMS [µm]</th><th>ΔBIC</th><th>bootstrap p05</th>
+<table><tr><th>effect</th><th>gap closed</th><th>val. RMS [µm]</th><th>ΔBIC</th><th>bootstrap p10</th>
 <th>held-out MSE ratio</th><th>accepted</th><th>parameters</th></tr>{''.join(rows)}</table>
 <h2>Waterfall</h2><img src="{figs['waterfall']}" alt="waterfall">
 <h2>Validation conditions not covered by training</h2><ul>{cov}</ul>
