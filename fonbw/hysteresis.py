@@ -506,11 +506,14 @@ def run_kernel(code, u, P, ssize, out, hout):
 
 
 @nb.njit(cache=True, parallel=True)
-def run_population(code, u, Pm, ssizes, out):
-    """Rows of Pm (padded packed parameter blocks) in parallel."""
+def run_population(code, U, Pm, ssizes, out):
+    """Rows of Pm (padded packed parameter blocks) in parallel.
+
+    ``U`` holds one input row shared by all candidates, or one row each.
+    """
     for p in nb.prange(Pm.shape[0]):
-        hd = np.empty(u.shape[0])
-        run_kernel(code, u, Pm[p], ssizes[p], out[p], hd)
+        hd = np.empty(U.shape[1])
+        run_kernel(code, U[0] if U.shape[0] == 1 else U[p], Pm[p], ssizes[p], out[p], hd)
 
 
 # ---------------------------------------------------------------------------
@@ -1112,15 +1115,17 @@ def model_from_vector(kind: str, theta, N: int = 3, memory: str = "fast"):
 
 
 def simulate_population(kind: str, theta, u, dt, memory: str = "fast", N: int = 3) -> np.ndarray:
-    """Simulate many parameter sets on one input in one compiled, parallel call.
+    """Simulate many parameter sets in one compiled, parallel call.
 
     Parameters
     ----------
     kind : {"fonbw", "nbw", "cbw", "zhu"}
     theta : array_like, shape (P, d)
         Parameter vectors in the order of :func:`param_names`.
-    u : array_like
-        Input [V].
+    u : array_like, shape (n,) or (P, n)
+        Input [V]: one input for all candidates, or one row per candidate
+        (e.g. when an input-side effect block filters the voltage differently
+        for each candidate).
     dt : float
         Step [s].
     memory : str
@@ -1130,18 +1135,25 @@ def simulate_population(kind: str, theta, u, dt, memory: str = "fast", N: int = 
 
     Returns
     -------
-    ndarray, shape (P, len(u))
+    ndarray, shape (P, n)
         Outputs [µm]; a row is NaN from the step where its candidate diverged
         (and whole-NaN for an invalid parameter vector).
     """
     th = np.atleast_2d(np.asarray(theta, dtype=float))
-    u = _input(u)
+    U = np.ascontiguousarray(u, dtype=float)
+    if U.ndim == 1:
+        U = _input(U)[None, :]
+    elif U.ndim != 2 or U.shape[0] != th.shape[0]:
+        raise ValueError(f"u must be 1-D or have one row per parameter vector ({th.shape[0]}), got shape {U.shape}")
+    elif not np.all(np.isfinite(U)):
+        raise ValueError("input u contains NaN or infinite values")
     dt = _dt(dt)
     P = th.shape[0]
+    n = U.shape[1]
     d = len(param_names(kind, N))
     if th.shape[1] != d:
         raise ValueError(f"theta must have {d} columns for {kind} with N={N}, got {th.shape[1]}")
-    out = np.full((P, len(u)), np.nan)
+    out = np.full((P, n), np.nan)
     models = []
     for p in range(P):
         try:
@@ -1152,15 +1164,16 @@ def simulate_population(kind: str, theta, u, dt, memory: str = "fast", N: int = 
         return out
     if memory == "oustaloup" and kind == "fonbw":
         for p, m in models:
-            out[p] = m.simulate(u, dt)
+            out[p] = m.simulate(U[0] if U.shape[0] == 1 else U[p], dt)
         return out
-    packs = [m._pack(dt, n_steps=len(u)) for _, m in models]
+    rows = [p for p, _ in models]
+    packs = [m._pack(dt, n_steps=n) for _, m in models]
     width = max(len(pk[0]) for pk in packs)
     Pm = np.zeros((len(packs), width))
     for i, (pk, _) in enumerate(packs):
         Pm[i, :len(pk)] = pk
     ss = np.array([pk[1] for pk in packs], dtype=np.int64)
-    sub = np.empty((len(packs), len(u)))
-    run_population(models[0][1]._code, u, Pm, ss, sub)
-    out[[p for p, _ in models]] = sub
+    sub = np.empty((len(packs), n))
+    run_population(models[0][1]._code, U if U.shape[0] == 1 else U[rows], Pm, ss, sub)
+    out[rows] = sub
     return out

@@ -270,3 +270,19 @@ def test_load_model_errors_name_the_file(tmp_path):
         fonbw.load_model(p)
     with pytest.raises(ValueError, match="missing.json: cannot open"):
         fonbw.load_model(tmp_path / "missing.json")
+
+
+def test_population_with_one_input_row_per_candidate():
+    u = eq19(0.3, 1e-4)
+    U = np.vstack([u, 0.5 * u, u[::-1].copy()])
+    base = [TABLE1["ku"][0], TABLE1["ku"][1], TABLE1["ku"][2], TABLE1["kh"], TABLE1["rho"],
+            TABLE1["sigma"], TABLE1["n"], TABLE1["lam1"], TABLE1["lam2"]]
+    th = np.array([base, base, base])
+    th[2, 4] = -1.0  # invalid row stays NaN
+    Y = H.simulate_population("fonbw", th, U, 1e-4)
+    m = fonbw.FONBW(**TABLE1)
+    assert np.array_equal(Y[0], m.simulate(u, 1e-4))
+    assert np.array_equal(Y[1], m.simulate(0.5 * u, 1e-4))
+    assert np.all(np.isnan(Y[2]))
+    with pytest.raises(ValueError, match="one row per parameter vector"):
+        H.simulate_population("fonbw", th, U[:2], 1e-4)
