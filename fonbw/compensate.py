@@ -184,6 +184,18 @@ def _brent(core, V, hd, a, fa, b, fb, tol, maxit):
 
 
 @nb.njit(cache=True)
+def _bracketed(core, V, hd, a, fa, b, fb, tol, maxit, n, bx, bf, slope):
+    """Brent on a sign-change bracket; the best point so far if it does not converge."""
+    x, fx, c, fc, m = _brent(core, V, hd, a, fa, b, fb, tol, maxit)
+    n += m
+    if abs(fx) <= tol:
+        return x, fx, OK, n, ((fx - fc) / (x - c) if x != c else slope)
+    if abs(fx) < abs(bf):
+        bx, bf = x, fx
+    return bx, bf, NOT_CONVERGED, n, slope
+
+
+@nb.njit(cache=True)
 def _solve(core, V, hd, lo, hi, x0, slope, tol, maxit):
     """Root u of H(u; history) = hd in [lo, hi] by trial steps (commit=False).
 
@@ -221,14 +233,7 @@ def _solve(core, V, hd, lo, hi, x0, slope, tol, maxit):
             if abs(fb) <= tol:
                 return b, fb, OK, n, (fb - fa) / (b - a)
             if not _same_sign(fa, fb):
-                x, fx, c, fc, m = _brent(core, V, hd, a, fa, b, fb, tol, maxit)
-                n += m
-                if abs(fx) <= tol:
-                    s = (fx - fc) / (x - c) if x != c else slope
-                    return x, fx, OK, n, s
-                if abs(fx) < abs(bf):
-                    bx, bf = x, fx
-                return bx, bf, NOT_CONVERGED, n, slope
+                return _bracketed(core, V, hd, a, fa, b, fb, tol, maxit, n, bx, bf, slope)
             if abs(fb) >= abs(fa):
                 break  # no progress: the fallback brackets the whole range
             dx = -fb * (b - a) / (fb - fa)
@@ -246,14 +251,7 @@ def _solve(core, V, hd, lo, hi, x0, slope, tol, maxit):
                 a, fa, b, fb = lo, flo, x0, f0
         else:
             a, fa, b, fb = lo, flo, hi, fhi
-        x, fx, c, fc, m = _brent(core, V, hd, a, fa, b, fb, tol, maxit)
-        n += m
-        if abs(fx) <= tol:
-            s = (fx - fc) / (x - c) if x != c else slope
-            return x, fx, OK, n, s
-        if abs(fx) < abs(bf):
-            bx, bf = x, fx
-        return bx, bf, NOT_CONVERGED, n, slope
+        return _bracketed(core, V, hd, a, fa, b, fb, tol, maxit, n, bx, bf, slope)
     # no sign change over [lo, hi]: the target is out of reach
     alo = abs(flo) if math.isfinite(flo) else math.inf
     ahi = abs(fhi) if math.isfinite(fhi) else math.inf
