@@ -152,7 +152,7 @@ class Drift(Effect):
 class Dynamics(Effect):
     """Second-order mechanical resonance on the output (:func:`fonbw.plant.mechanics`).
 
-    G(s) = ωn²/(s² + 2ζωn s + ωn²), ωn = 2π f_res, unit DC gain, discretized
+    G(s) = ωn²/(s² + 2ζωn s + ωn²), ωn = 2π f_res, ζ ≤ 0.7, unit DC gain, discretized
     by python-control with a first-order hold once per parameter pair. The
     hold keeps a direct feedthrough, so a fast resonance tends to the
     identity; a zero-order hold would add a whole sample of delay at any
@@ -168,10 +168,12 @@ class Dynamics(Effect):
     def __init__(self, dt):
         super().__init__()
         fn = 0.5 / dt
-        self.bounds = [(fn / 100.0, 1000.0 * fn), (0.02, 2.0)]
+        # a resonance: ζ ≤ 0.7 (an overdamped second-order lag is what the
+        # amplifier and delay blocks describe)
+        self.bounds = [(fn / 100.0, 1000.0 * fn), (0.02, 0.7)]
         self.log_scale = [True, True]
         f = np.r_[np.geomspace(fn / 100.0, 5.0 * fn, 12), 1000.0 * fn]
-        z = np.array([0.05, 0.15, 0.4, 1.0])
+        z = np.array([0.05, 0.15, 0.3, 0.6])
         self.grid = np.array([(a, b) for a in f for b in z])
 
     @staticmethod

@@ -190,9 +190,9 @@ def _strength(name, s, rng_params):
     if name == "creep":
         return {"gamma": 10 ** (-5 + 4 * s)}
     if name == "dynamics":
-        return {"f_res": 10 ** (math.log10(2400) - s * (math.log10(2400) - math.log10(60))), "zeta": p["zeta"]}
+        return {"f_res": 10 ** (math.log10(2e4) - s * (math.log10(2e4) - math.log10(60))), "zeta": p["zeta"]}
     if name == "amplifier":
-        fc = 10 ** (math.log10(5000) - s * (math.log10(5000) - math.log10(5)))
+        fc = 10 ** (math.log10(5e4) - s * (math.log10(5e4) - math.log10(5)))
         return {"f_c": fc, "slew": (p["slew_k"] * 2 * math.pi * fc * 120.0) if p["slew_k"] else None}
     if name == "delay":
         return {"seconds": 10 ** (-6 + 3.5 * s)}
