@@ -45,7 +45,6 @@ from __future__ import annotations
 import math
 import time
 
-import numba as nb
 import numpy as np
 
 from .. import hysteresis as hyst
@@ -59,50 +58,14 @@ __all__ = ["diagnose", "Fitter", "coverage"]
 KIND = "fonbw"
 
 
-@nb.njit(parallel=True, cache=True)
-def _run_rows(views, core, U, Pm, ssizes, out):  # pragma: no cover - compiled
-    # As hysteresis.run_population, but every candidate row has its own input
-    # (input-side effects change the voltage before the hysteresis).
-    for p in nb.prange(Pm.shape[0]):
-        S = np.zeros(ssizes[p])
-        V = views(Pm[p], S)
-        for k in range(U.shape[1]):
-            y = core(U[p, k], True, V)
-            out[p, k] = y
-            if not math.isfinite(y):
-                out[p, k:] = math.nan
-                break
-
-
 def simulate_rows(theta, U, dt, memory="fast", N=3):
     """FONBW outputs [µm] for parameter rows `theta` (P, d), each with its own input row of `U` (P, n).
 
-    Rows whose parameters are invalid or diverge are NaN (as
-    :func:`fonbw.hysteresis.simulate_population`).
+    Rows whose parameters are invalid or diverge are NaN
+    (:func:`fonbw.hysteresis.simulate_population`, which runs them).
     """
     theta = np.atleast_2d(theta)
-    U = np.ascontiguousarray(U, dtype=float)
-    out = np.full(U.shape, np.nan)
-    rows, packs, model = [], [], None
-    for p in range(theta.shape[0]):
-        try:
-            m = hyst.model_from_vector(KIND, theta[p], N, memory)
-        except ValueError:
-            continue
-        rows.append(p)
-        packs.append(m._pack(dt, n_steps=U.shape[1]))
-        model = m
-    if not rows:
-        return out
-    width = max(len(pk[0]) for pk in packs)
-    Pm = np.zeros((len(rows), width))
-    for i, pk in enumerate(packs):
-        Pm[i, :len(pk[0])] = pk[0]
-    ss = np.array([pk[1] for pk in packs], dtype=np.int64)
-    sub = np.empty((len(rows), U.shape[1]))
-    _run_rows(*model._kernels, U[rows], Pm, ss, sub)
-    out[rows] = sub
-    return out
+    return hyst.simulate_population(KIND, theta, np.ascontiguousarray(U, dtype=float), dt, memory=memory, N=N)
 
 
 class Fitter:
