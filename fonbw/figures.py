@@ -34,6 +34,12 @@ def _plt():
     return plt
 
 
+def _save(fig, path, plt):
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def _sine(f, periods=2, amp=1.0, offset=0.0, pts=2000):
     dt = 1.0 / (f * pts)
     t = np.arange(periods * pts + 1) * dt
@@ -56,9 +62,7 @@ def fig1(path, freqs=(1, 5, 10, 20)):
         ax.plot(u, cbw.simulate(u, dt), label=f"{f} Hz")
     ax.set(xlabel="u [V]", ylabel="H [µm]", title="Fig. 1: CBW at several frequencies")
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path, plt)
 
 
 def fig2(path):
@@ -73,9 +77,7 @@ def fig2(path):
     ax.plot(u, asym.simulate(u, dt), "r-", label="asymmetric NBW")
     ax.set(xlabel="u [V]", ylabel="H [µm]", title="Fig. 2: CBW, NBW, asymmetric NBW")
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path, plt)
 
 
 def fig3(path):
@@ -90,9 +92,7 @@ def fig3(path):
         ax.set(xlabel="u", ylabel="g(u)", title=title)
         ax.legend(fontsize=8)
     fig.suptitle("Fig. 3: polynomial input functions, eq. (10)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path, plt)
 
 
 def fig4(path, freqs=(1, 5, 10)):
@@ -114,9 +114,7 @@ def fig4(path, freqs=(1, 5, 10)):
             ax.annotate(f"{f} Hz", (u[sl][np.argmax(hb[sl])], np.max(hb[sl])), fontsize=7)
         ax.set(xlabel="u", ylabel="ħ", title=title)
     fig.suptitle("Fig. 4: FONBW loops, ρ = σ = n = 1; red/green/blue/magenta = eqs. (12)/(13)/(14)/(15)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path, plt)
 
 
 def make_figures(out_dir) -> list[str]:
