@@ -81,23 +81,16 @@ def cmd_simulate(ns):
     print(f"wrote {ns.output}: {len(y)} samples at dt = {rec.dt:.6g} s, y in [{y.min():.4g}, {y.max():.4g}] µm")
 
 
-def validation_metrics(model, rec) -> dict:
-    """RMS error [µm], RMS as % of the measured range (Table 3), max error [µm]."""
-    import numpy as np
-
-    yhat = model.simulate(rec.u, rec.dt)
-    e = yhat - rec.y
-    rng = float(np.ptp(rec.y))
-    rms = float(np.sqrt(np.mean(e**2)))
-    return {"file": rec.path, "samples": int(len(e)), "rms": rms,
-            "rms_percent": 100.0 * rms / rng if rng > 0 else math.inf,
-            "max_abs": float(np.max(np.abs(e))), "range": rng}
-
-
 def cmd_validate(ns):
+    from .reproduce import rms_metrics
+
     m = _model(ns.model)
     recs = _records(ns.data, zero=not ns.keep_offset)
-    res = [validation_metrics(m, r) for r in recs]
+    res = []
+    for r in recs:
+        met = rms_metrics(m, r)
+        met.pop("yhat")
+        res.append({"file": r.path, "samples": int(len(r.y)), **met})
     out = res[0] if len(res) == 1 else {"records": res, **{k: max(r[k] for r in res) for k in ("rms", "rms_percent", "max_abs")}}
     if ns.json:
         print(json.dumps({"model": ns.model, "kind": m.kind, **out}, indent=2))

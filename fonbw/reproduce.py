@@ -11,6 +11,7 @@ discretized at the record's step, so they are validated at the bench rate.
 from __future__ import annotations
 
 import json
+import math
 import os
 import time
 
@@ -59,8 +60,8 @@ def rms_metrics(model, rec: Record) -> dict:
     e = yhat - rec.y
     rng = float(np.ptp(rec.y))
     rms = float(np.sqrt(np.mean(e**2)))
-    return {"rms": rms, "rms_percent": 100.0 * rms / rng, "max_abs": float(np.max(np.abs(e))), "range": rng,
-            "yhat": yhat}
+    return {"rms": rms, "rms_percent": 100.0 * rms / rng if rng > 0 else math.inf,
+            "max_abs": float(np.max(np.abs(e))), "range": rng, "yhat": yhat}
 
 
 def table1(results) -> list[dict]:
