@@ -165,7 +165,9 @@ def _delegate(module, func):
 
 # ---------------------------------------------------------------------------
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command=None) -> argparse.ArgumentParser:
+    """The argument parser; ``command`` is the sub-command about to run (its
+    arguments are attached only for it when defining them is costly)."""
     from . import __version__
     from .fractional import ENGINES
 
@@ -212,21 +214,22 @@ def build_parser() -> argparse.ArgumentParser:
                    help="one-step-delayed variant instead of the per-step implicit solve")
     s.set_defaults(func=cmd_compensate)
 
+    # cosim and diagnose define their own arguments; their modules pull in
+    # python-control and fmpy (about a second), so they are imported only when
+    # that command is the one being run.
     s = sub.add_parser("cosim", help="closed-loop co-simulation of the FMUs (reference, fmpy, libcosim)")
-    try:
+    if command == "cosim":
         from .cosim import add_cosim_arguments
+
         add_cosim_arguments(s)
-        s.set_defaults(func=_delegate("cosim", "cosim_command"))
-    except ImportError:
-        s.set_defaults(func=lambda ns: (_ for _ in ()).throw(CLIError("cosim is not available in this build")))
+    s.set_defaults(func=_delegate("cosim", "cosim_command"))
 
     s = sub.add_parser("diagnose", help="localize and attribute the sim-to-real gap")
-    try:
+    if command == "diagnose":
         from .gap import add_diagnose_arguments
+
         add_diagnose_arguments(s)
-        s.set_defaults(func=_delegate("gap", "diagnose_command"))
-    except ImportError:
-        s.set_defaults(func=lambda ns: (_ for _ in ()).throw(CLIError("diagnose is not available in this build")))
+    s.set_defaults(func=_delegate("gap", "diagnose_command"))
 
     s = sub.add_parser("figures", help="the paper's Figs. 1-4 as PNG files")
     s.add_argument("-o", "--output", default="figures", metavar="DIR")
@@ -252,8 +255,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
-    ns = parser.parse_args(argv)
+    args = sys.argv[1:] if argv is None else list(argv)
+    command = next((a for a in args if not a.startswith("-")), None)
+    parser = build_parser(command)
+    ns = parser.parse_args(args)
     if not getattr(ns, "command", None):
         parser.print_help()
         return 2
