@@ -39,12 +39,16 @@ def test_dynamics_block_keeps_rest_at_first_value():
 def test_delay_block_integer_and_fractional():
     x = np.arange(50, dtype=float) ** 2
     d = fx.Delay(DT)
-    y = d.output_op(x, DT, (3 * DT,))
+    assert d.input_side
+    y = d.transform_input(x, DT, (3 * DT,))
     np.testing.assert_array_equal(y[3:], x[:-3])
     np.testing.assert_array_equal(y[:3], x[0])
     ramp = 2.0 * np.arange(40.0)
-    y = d.output_op(ramp, DT, (2.5 * DT,))
+    y = d.transform_input(ramp, DT, (2.5 * DT,))
     np.testing.assert_allclose(y[5:], ramp[5:] - 5.0, atol=1e-12)
+    # a step delayed by half a sample is a two-sample ramp
+    step = np.r_[np.zeros(5), np.full(5, 8.0)]
+    np.testing.assert_allclose(d.transform_input(step, DT, (0.5 * DT,))[4:8], [0.0, 4.0, 8.0, 8.0])
 
 
 def test_creep_columns_closed_form_step():
@@ -82,8 +86,13 @@ def test_dynamics_block_fast_resonance_is_nearly_identity():
 
 def test_saturation_and_drift_blocks():
     s = fx.Saturation(0.0, 20.0)
-    C = s.columns({"y_ref": np.array([0.0, 10.0, 18.0])}, (16.0,))
-    np.testing.assert_array_equal(C, [[0], [0], [2]])
+    y = np.array([0.0, 10.0, 16.0, 18.0, 30.0])
+    C = s.columns({"y_ref": y}, (16.0, 0.5))
+    np.testing.assert_allclose(C[:, 0], 0.5 * np.log1p(np.exp((y - 16.0) / 0.5)), rtol=1e-12)
+    assert C[2, 0] == pytest.approx(0.5 * math.log(2.0), rel=1e-12)  # half the corner at the knee
+    # a narrow corner is the hard knee (H − y_k)_+, without overflow far above it
+    C = s.columns({"y_ref": y}, (16.0, 1e-4))
+    np.testing.assert_allclose(C[:, 0], np.maximum(y - 16.0, 0.0), atol=1e-4)
     d = fx.Drift()
     C = d.columns({"t": np.array([0.0, 10.0, 20.0])}, ())
     np.testing.assert_array_equal(C, [[0, 0], [1, 1], [2, 4]])
@@ -133,19 +142,47 @@ def test_coverage_flags_faster_validation():
     assert coverage([fast], [slow], DT) == []
 
 
+def test_truth_amplifier_is_the_exact_two_pole_response_under_zoh():
+    # no slew limit: the sub-stepped ODE is the linear 1/((s/(8π f_c) + 1)(s/(2π f_c) + 1))
+    # under a zero-order hold, read at the end of each interval (u_k included)
+    fc = 400.0
+    u = np.r_[np.zeros(5), np.full(60, 80.0), np.full(60, 20.0)]
+    v = tr._amplifier_ode(u, DT, fc, math.inf)
+    sys = ct.tf([1.0], np.polymul([1 / (8 * math.pi * fc), 1.0], [1 / (2 * math.pi * fc), 1.0]))
+    d = ct.c2d(ct.ss(sys), DT, method="zoh")
+    A, B, C = (np.asarray(m, dtype=float) for m in (d.A, d.B, d.C))
+    x = np.zeros((A.shape[0], 1))
+    ref = []
+    for uk in u:
+        x = A @ x + B * uk
+        ref.append(float((C @ x)[0, 0]))
+    np.testing.assert_allclose(v, ref, rtol=0, atol=1e-4 * 80.0)  # midpoint sub-steps: O(h²)
+    # a current limit: the voltage moves at most slew·dt per sample and still settles
+    v = tr._amplifier_ode(u, DT, fc, 1e5)
+    assert np.max(np.abs(np.diff(v))) <= 1e5 * DT * (1 + 1e-12)
+    assert np.max(np.abs(np.diff(v))) == pytest.approx(1e5 * DT, rel=1e-9)
+    assert v[64] == pytest.approx(80.0, abs=1e-6)
+
+
 def test_truth_effects_are_not_the_candidate_blocks():
-    # the truth's delay (cubic spline on the input) and the candidate's delay
-    # (linear interpolation of the output) agree at whole samples only up to
-    # the hysteresis' time invariance; at 1.5 samples they differ visibly
+    # the truth's delay (monotone cubic on the input) and the candidate's delay
+    # (linear interpolation of the input) agree at whole samples; at 1.5
+    # samples they differ visibly
     sc = tr.draw_scenario(5, "null", scale=0.25)
     truth = sc["truth"]
     u = sc["validate"][0].u
+    d = fx.Delay(DT)
     a = truth.output(u, effects={"delay": {"seconds": 2 * DT}})
-    b = fx.Delay(DT).output_op(truth.output(u, effects={}), DT, (2 * DT,))
+    b = truth.output(d.transform_input(u, DT, (2 * DT,)), effects={})
     assert np.max(np.abs(a - b)) < 1e-9 * np.ptp(a)
     a = truth.output(u, effects={"delay": {"seconds": 1.5 * DT}})
-    b = fx.Delay(DT).output_op(truth.output(u, effects={}), DT, (1.5 * DT,))
+    b = truth.output(d.transform_input(u, DT, (1.5 * DT,)), effects={})
     assert np.max(np.abs(a - b)) > 1e-6
+    # and the truth's amplifier is not the candidate's RC stage
+    p = {"f_c": 300.0, "slew": None}
+    a = truth.output(u, effects={"amplifier": p})
+    b = truth.output(fx.Amplifier(DT, 120.0).transform_input(u, DT, (300.0, 1e12)), effects={})
+    assert np.max(np.abs(a - b)) > 1e-3
 
 
 def test_diagnose_refuses_bad_input():

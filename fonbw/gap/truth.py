@@ -11,10 +11,11 @@ creep          logarithmic creep, γ per decade: 12 modes   4 fixed modes 0.01�
                τ = 1 ms … 100 s, Tustin, on the output     gains solved
 dynamics       two modes: 0.96 at (f_res, ζ) and 0.04 at    one mode, python-control c2d (FOH)
                (3.3 f_res, 0.1), scipy lsim
-amplifier      fonbw.bench chain: slew limit on the        RC stage whose rate is clipped
-               command, then python-control RC pole (ZOH)  (implicit step)
-delay          continuous transport delay of the input,    output delay, linear interpolation
-               cubic-spline interpolation
+amplifier      internal pole at 4 f_c, then the load's RC    RC stage whose rate is clipped
+               with a current (slew) limit, exact ODE      (implicit step)
+               solution, 16 sub-steps per sample
+delay          continuous transport delay of the input,    input delay, linear interpolation
+               monotone cubic (PCHIP) interpolation
 drift          A (1 − e^(−t/τ_th)) + integrated random     (t/10 s), (t/10 s)² shared by records
                walk per record
 saturation     smooth stroke limit (tanh knee) on the      slope change c (H − knee)_+, c solved
@@ -33,19 +34,20 @@ from __future__ import annotations
 import math
 import os
 
+import numba as nb
 import numpy as np
 from scipy import signal
-from scipy.interpolate import CubicSpline
+from scipy.interpolate import PchipInterpolator
 
 from .. import bench as _bench
-from .. import plant as _plant
 from ..hysteresis import FONBW, load_model
 from ..io import Record
 
-__all__ = ["TRUTH_EFFECTS", "Truth", "default_experiments", "draw_scenario", "magnitude"]
+__all__ = ["TRUTH_EFFECTS", "KINDS", "Truth", "default_experiments", "draw_scenario", "scenario_kind", "magnitude"]
 
 TRUTH_EFFECTS = ("creep", "dynamics", "amplifier", "delay", "drift", "saturation", "hum")
 FS = 5000.0
+KINDS = ("null", "single", "pair", "outside", "below")
 _DEFAULT = os.path.join(os.path.dirname(__file__), "..", "..", "models", "fonbw_default.json")
 
 
@@ -74,6 +76,43 @@ def default_experiments(fs=FS, scale=1.0):
         ("steps_v", _bench.step_hold_input((80.0, 20.0), hold=1.0 * s, fs=fs)[1]),
     ]
     return train, val
+
+
+@nb.njit(cache=True)
+def _amplifier_ode(u, dt, f_c, slew, substeps=16):  # pragma: no cover - compiled
+    """Amplifier with an internal pole at 4 f_c driving the capacitive load.
+
+    The command u is held over each sample interval (the DAC) and the output
+    is read at the interval's end. Internal stage: dw/dt = 8π f_c (u − w),
+    exact per sub-step. Load: dv/dt = clip((w − v)/τ, ±slew), τ = 1/(2π f_c):
+    the output current is limited, so the voltage slews linearly until it is
+    within slew·τ of w and then relaxes exponentially; solved exactly per
+    sub-step with w at the sub-step's midpoint. At rest at u_0.
+    """
+    out = np.empty_like(u)
+    h = dt / substeps
+    tau = 1.0 / (2.0 * math.pi * f_c)
+    aw = math.exp(-h * 4.0 * 2.0 * math.pi * f_c)
+    aw2 = math.exp(-0.5 * h * 4.0 * 2.0 * math.pi * f_c)
+    band = slew * tau
+    w = u[0]
+    v = u[0]
+    for k in range(u.shape[0]):
+        for _ in range(substeps):
+            wm = u[k] + (w - u[k]) * aw2
+            w = u[k] + (w - u[k]) * aw
+            e = wm - v
+            rest = h
+            if abs(e) > band:
+                t1 = (abs(e) - band) / slew
+                if t1 >= h:
+                    v += math.copysign(slew * h, e)
+                    continue
+                v += math.copysign(slew * t1, e)
+                rest = h - t1
+            v = wm - (wm - v) * math.exp(-rest / tau)
+        out[k] = v
+    return out
 
 
 def _lowpass_tustin(x, tau, dt):
@@ -122,15 +161,16 @@ class Truth:
         v = u
         if "delay" in eff:
             td = eff["delay"]["seconds"]
-            cs = CubicSpline(t, u)
+            # monotone cubic (PCHIP) reconstruction of the command: third-order
+            # on smooth inputs, and an S-shaped edge without overshoot at a
+            # step. A cubic spline rings on both sides of a step (Gibbs), a
+            # resonance-like signature no DAC puts out
+            cs = PchipInterpolator(t, u)
             ts = t - td
             v = np.where(ts <= 0, u[0], cs(np.clip(ts, 0, None)))
         if "amplifier" in eff:
             p = eff["amplifier"]
-            if p.get("slew") is not None:
-                v = _bench._slew_kernel(np.ascontiguousarray(v), p["slew"] * dt, float(v[0]))
-            amp = _plant.LinearStepper(_plant.amplifier(1.0, 1.0, 1.0 / (2 * math.pi * p["f_c"])), dt)
-            v = amp.simulate(v - v[0]) + v[0]  # unit DC gain, at rest at v_0
+            v = _amplifier_ode(np.ascontiguousarray(v), dt, p["f_c"], p.get("slew") or math.inf)
         y = self.hyst.simulate(v, dt)
         if "creep" in eff:
             g = eff["creep"]["gamma"]  # fraction of the step per decade of time
@@ -211,7 +251,10 @@ def calibrate(truth, inputs, name, target, rng):
     """Effect parameters whose magnitude on `inputs` is `target` noise stds (bisection)."""
     rp = {"zeta": float(rng.uniform(0.05, 0.3)), "slew_k": float(rng.choice([0.0, rng.uniform(0.3, 1.0)])),
           "tau": float(rng.uniform(20, 200)),
-          "ymax": max(float(np.max(truth.output(u, effects={}))) for _, u in inputs)}
+          # the top of the stroke the records dwell at: FONBW answers an
+          # instant step with a one-sample spike (the GL derivative of the
+          # step), which a plain max would take for the stroke
+          "ymax": float(np.quantile(np.concatenate([truth.output(u, effects={}) for _, u in inputs]), 0.999))}
     lo, hi = 0.0, 1.0
     m_hi = magnitude(truth, inputs, name, _strength(name, hi, rp))
     if m_hi < target:
@@ -224,6 +267,11 @@ def calibrate(truth, inputs, name, target, rng):
             hi = mid
     p = _strength(name, hi, rp)
     return p, magnitude(truth, inputs, name, p)
+
+
+def scenario_kind(seed):
+    """The kind :func:`draw_scenario` draws for `seed` (cheap: no simulation)."""
+    return str(np.random.default_rng([seed, 2026]).choice(KINDS, p=[0.15, 0.45, 0.2, 0.1, 0.1]))
 
 
 def draw_scenario(seed, kind=None, scale=1.0, fs=FS):
@@ -242,7 +290,7 @@ def draw_scenario(seed, kind=None, scale=1.0, fs=FS):
     """
     rng = np.random.default_rng([seed, 2026])
     if kind is None:
-        kind = rng.choice(["null", "single", "pair", "outside", "below"], p=[0.15, 0.45, 0.2, 0.1, 0.1])
+        kind = rng.choice(KINDS, p=[0.15, 0.45, 0.2, 0.1, 0.1])
     base = load_model(_DEFAULT)
     pr = base.params
     ku = np.asarray(pr["ku"]) * (1 + 0.03 * rng.standard_normal(3))
