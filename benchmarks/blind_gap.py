@@ -125,13 +125,14 @@ def summary(path):
     lines.append(f"  of these, where the nominal model's gap is above the noise floor: {sum(t1v)}/{len(t1v)}"
                  + (f" = {100 * np.mean(t1v):.0f} %" if t1v else "")
                  + f" ({len(singles) - len(vis)} absorbed by the refit nominal model, gap at the floor)")
-    una = [r for r in singles if r.get("unabsorbed", math.inf) >= UNABSORBED]
+    una = [r for r in singles if r.get("unabsorbed", -1.0) >= UNABSORBED]
     t1u = [r["named"][:1] == list(r["injected"]) for r in una]
-    lines.append(f"  of these, where a FONBW fitted to the noiseless truth leaves ≥ {UNABSORBED:g} σ (unabsorbed): "
-                 f"{sum(t1u)}/{len(t1u)}" + (f" = {100 * np.mean(t1u):.0f} %" if t1u else "")
-                 + f"; absorbed (< {UNABSORBED:g} σ): " + (", ".join(
-                     f"{list(r['injected'])[0]} {mag(r):.1f}σ→{r['unabsorbed']:.2f}σ named {r['named'] or '-'}"
-                     for r in singles if r.get("unabsorbed", math.inf) < UNABSORBED) or "none"))
+    if any("unabsorbed" in r for r in singles):
+        absorbed = ", ".join(f"{list(r['injected'])[0]} {mag(r):.1f}σ→{r['unabsorbed']:.2f}σ named {r['named'] or '-'}"
+                             for r in singles if r.get("unabsorbed", math.inf) < UNABSORBED)
+        lines.append(f"  of these, where a FONBW fitted to the noiseless truth leaves ≥ {UNABSORBED:g} σ "
+                     f"(unabsorbed): {sum(t1u)}/{len(t1u)}" + (f" = {100 * np.mean(t1u):.0f} %" if t1u else "")
+                     + f"; absorbed (< {UNABSORBED:g} σ): {absorbed or 'none'}")
     exact = [r["named"] == list(r["injected"]) for r in singles]
     lines.append(f"exactly the injected effect named (material single): {sum(exact)}/{len(exact)}")
     if between:

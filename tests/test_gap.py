@@ -279,3 +279,22 @@ def test_blind_null_names_nothing():
     res = diagnose(sc["train"], sc["validate"], seed=1, **FAST)
     assert res["verdict"]["effects"] == []
     assert res["nominal"]["noise_floor"] == pytest.approx(sc["noise_std"], rel=0.1)
+
+
+def test_blind_amplifier_lag_is_not_taken_for_a_delay():
+    # an RC amplifier (two poles in the truth, one in the candidate): the
+    # delay and the resonance blocks lag too and close part of the gap, but
+    # the amplifier must be named
+    sc = tr.draw_scenario(12, "null", scale=0.5)
+    truth = sc["truth"]
+    truth.effects = {"amplifier": {"f_c": 250.0, "slew": None}}
+    tr_in, va_in = tr.default_experiments(scale=0.5)
+    train = [truth.record(u, n, i) for i, (n, u) in enumerate(tr_in)]
+    val = [truth.record(u, n, 50 + i) for i, (n, u) in enumerate(va_in)]
+    res = diagnose(train, val, seed=4, **FAST)
+    v = res["verdict"]
+    assert v["effects"][:1] == ["amplifier"]
+    assert v["gap_closed"] > 0.8
+    # the one-pole candidate's corner sits between the truth's two poles' lag sum
+    # (1/(2π·250) + 1/(2π·1000) → 204 Hz) and the main pole
+    assert 150.0 < v["params"]["amplifier"]["f_c"] < 400.0
