@@ -84,6 +84,14 @@ def test_dynamics_block_fast_resonance_is_nearly_identity():
     assert np.max(np.abs(y[20:] - 10.0)) < 1e-6
 
 
+def test_resonance_is_identified_only_below_nyquist_and_inside_the_damping_bound():
+    d = fx.Dynamics(DT)  # Nyquist 2500 Hz
+    assert d.identified((400.0, 0.1))
+    assert not d.identified((3000.0, 0.1))   # above Nyquist: a sub-sample lag
+    assert not d.identified((400.0, d.bounds[1][1]))  # at the damping bound: does not ring
+    assert fx.Delay(DT).identified((1e-4,)) and fx.Amplifier(DT, 120.0).identified((300.0, 1e5))
+
+
 def test_saturation_and_drift_blocks():
     s = fx.Saturation(0.0, 20.0)
     y = np.array([0.0, 10.0, 16.0, 18.0, 30.0])

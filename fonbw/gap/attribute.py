@@ -34,7 +34,10 @@ split into training and validation sets:
    most ``max_effects`` effects, strongest first; among passing effects that
    close nearly as much (``tie_margin``) the one with the lowest BIC wins
    (lags of a delay, an amplifier and a resonance look alike on the
-   validation sines; the step edges of the training records tell them apart). Validation
+   validation sines; the step edges of the training records tell them apart),
+   and a block whose fit degenerates into another effect (a resonance above
+   the Nyquist frequency or at its damping bound is only a lag) yields to a
+   tied block that is identified. Validation
    conditions the training records never covered (amplitude, rate,
    frequency, hold length) are flagged.
 
@@ -624,7 +627,10 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
             passed = (checks["material"] and dbic < 0 and checks["bootstrap"]["p10"] > 0
                       and (checks["loro"] is None or checks["loro"]["pooled_ratio"] < 1.0))
             checks["passed"] = bool(passed)
-            results.append({"i": i, "fit": fit, "pv": pv, "mse": mse, "eff": eff, "checks": checks})
+            ident = lib[i].identified(fit["th"][-1])
+            checks["identified"] = bool(ident)
+            results.append({"i": i, "fit": fit, "pv": pv, "mse": mse, "eff": eff, "checks": checks,
+                            "identified": ident})
             say(f"step {step + 1}: +{lib[i].name}: gap closed {gc:.3f}, ΔBIC {dbic:.3g}, "
                 f"{'passes' if passed else 'fails'} ({time.perf_counter() - t0:.0f} s)")
         if step == 0:
@@ -647,7 +653,10 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
         # apart); among those the training records' information criterion
         # decides, which weighs the step edges and charges every parameter
         tied = [r for r in ok if r["checks"]["gap_closed_step"] >= best["checks"]["gap_closed_step"] - tie_margin]
-        best = min(tied, key=lambda r: r["checks"]["delta_bic"])
+        # a block whose fit degenerates into another effect (a "resonance"
+        # above the Nyquist frequency is a lag) yields to a tied one that is
+        # identified
+        best = min(tied, key=lambda r: (not r["identified"], r["checks"]["delta_bic"]))
         accepted.append(lib[best["i"]].name)
         current = {"fit": best["fit"], "eff": best["eff"], "idx": current["idx"] + [best["i"]],
                    "mse": best["mse"], "mse_tr": best["fit"]["rms"] ** 2, "pred": best["pv"]}

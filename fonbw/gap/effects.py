@@ -84,6 +84,15 @@ class Effect:
     def columns(self, ctx, th):
         return None
 
+    def identified(self, th) -> bool:
+        """Whether parameters `th` describe this block's own effect.
+
+        False where the block degenerates into another one (a resonance
+        that cannot ring is a lag); the attribution then lets a tied
+        candidate that is identified win.
+        """
+        return True
+
     def describe(self, th, lin) -> dict:
         """Parameters by name (nonlinear then linear) as plain floats."""
         d = {k: float(v) for k, v in zip(self.names, th)}
@@ -166,6 +175,7 @@ class Dynamics(Effect):
     def __init__(self, dt):
         super().__init__()
         fn = 0.5 / dt
+        self.f_nyq = fn
         # a resonance: ζ ≤ 0.5, a mode that peaks (by 15 % at ζ = 0.5). Near
         # ζ = 0.7 a second-order mode is a flat low-pass whose only trace at
         # the records' 1-25 Hz is a lag, which is what the amplifier and
@@ -175,6 +185,12 @@ class Dynamics(Effect):
         f = np.r_[np.geomspace(fn / 100.0, 5.0 * fn, 12), 1000.0 * fn]
         z = np.array([0.05, 0.15, 0.3, 0.45])
         self.grid = np.array([(a, b) for a in f for b in z])
+
+    def identified(self, th):
+        # a mode at or above the Nyquist frequency cannot be seen ringing in
+        # the samples, and one at the damping bound does not ring: both are
+        # only a lag, which the delay and amplifier blocks describe
+        return bool(th[0] < self.f_nyq and th[1] < 0.98 * self.bounds[1][1])
 
     @staticmethod
     @functools.lru_cache(maxsize=4096)

@@ -9,17 +9,17 @@ effect         truth (here)                               candidate block (effec
 =============  =========================================  ===========================================
 creep          logarithmic creep, γ per decade: 12 modes   4 fixed modes 0.01…10 s, implicit Euler,
                τ = 1 ms … 100 s, Tustin, on the output     gains solved
-dynamics       two modes: 0.96 at (f_res, ζ) and 0.04 at    one mode, python-control c2d (FOH)
+dynamics       two modes: 0.96 at (f_res, ζ) and 0.04 at    one mode, ζ ≤ 0.5, python-control c2d (FOH)
                (3.3 f_res, 0.1), scipy lsim
-amplifier      internal pole at 4 f_c, then the load's RC    RC stage whose rate is clipped
-               with a current (slew) limit, exact ODE      (implicit step)
+amplifier      internal pole at 4 f_c, then the load's RC  one RC stage whose rate is clipped
+               with a current (slew) limit, exact ODE      per sample (implicit step)
                solution, 16 sub-steps per sample
 delay          continuous transport delay of the input,    input delay, linear interpolation
                monotone cubic (PCHIP) interpolation
 drift          A (1 − e^(−t/τ_th)) + integrated random     (t/10 s), (t/10 s)² shared by records
                walk per record
-saturation     smooth stroke limit (tanh knee) on the      slope change c (H − knee)_+, c solved
-               displacement
+saturation     smooth stroke limit (tanh knee) on the      slope change c over a softplus corner
+               displacement                                of width w at the knee, c solved
 hum            50 Hz + 150 Hz mains pickup, random phase   none: outside the library
 =============  =========================================  ===========================================
 
