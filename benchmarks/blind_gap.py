@@ -48,16 +48,17 @@ def unabsorbed(sc, evals=1500):
     diagnosis nothing to find, whatever its magnitude against the pure
     hysteresis. Uses the truth, so it is the benchmark's, never the diagnosis'.
     """
-    from fonbw.gap.truth import default_experiments
     from fonbw.identify import identify
     from fonbw.io import Record
 
     truth = sc["truth"]
-    tr_in, va_in = default_experiments(truth.fs)
-    clean = [Record.from_arrays(u=u, y=truth.output(u, i), dt=truth.dt) for i, (_, u) in enumerate(tr_in)]
+    # the scenario's own inputs and record indices (draw_scenario: training
+    # i, validation 50 + i), so the drift's random walk is the same one
+    clean = [Record.from_arrays(u=r.u, y=truth.output(r.u, i), dt=truth.dt) for i, r in enumerate(sc["train"])]
     model = identify(clean, "fonbw", seed=0, max_evals=evals).model
     num = n = 0
-    for i, (_, u) in enumerate(va_in):
+    for i, r in enumerate(sc["validate"]):
+        u = r.u
         d = truth.output(u, 50 + i) - model.simulate(u, truth.dt)
         num += float(np.sum(d * d))
         n += u.size
@@ -125,11 +126,12 @@ def summary(path):
     lines.append(f"  of these, where the nominal model's gap is above the noise floor: {sum(t1v)}/{len(t1v)}"
                  + (f" = {100 * np.mean(t1v):.0f} %" if t1v else "")
                  + f" ({len(singles) - len(vis)} absorbed by the refit nominal model, gap at the floor)")
-    una = [r for r in singles if r.get("unabsorbed", -1.0) >= UNABSORBED]
+    measured = [r for r in singles if "unabsorbed" in r]
+    una = [r for r in measured if r["unabsorbed"] >= UNABSORBED]
     t1u = [r["named"][:1] == list(r["injected"]) for r in una]
-    if any("unabsorbed" in r for r in singles):
+    if measured:
         absorbed = ", ".join(f"{list(r['injected'])[0]} {mag(r):.1f}σ→{r['unabsorbed']:.2f}σ named {r['named'] or '-'}"
-                             for r in singles if r.get("unabsorbed", math.inf) < UNABSORBED)
+                             for r in measured if r["unabsorbed"] < UNABSORBED)
         lines.append(f"  of these, where a FONBW fitted to the noiseless truth leaves ≥ {UNABSORBED:g} σ "
                      f"(unabsorbed): {sum(t1u)}/{len(t1u)}" + (f" = {100 * np.mean(t1u):.0f} %" if t1u else "")
                      + f"; absorbed (< {UNABSORBED:g} σ): {absorbed or 'none'}")

@@ -48,6 +48,7 @@ __all__ = ["TRUTH_EFFECTS", "KINDS", "Truth", "default_experiments", "draw_scena
 TRUTH_EFFECTS = ("creep", "dynamics", "amplifier", "delay", "drift", "saturation", "hum")
 FS = 5000.0
 KINDS = ("null", "single", "pair", "outside", "below")
+KIND_P = (0.15, 0.45, 0.2, 0.1, 0.1)  # probabilities of KINDS
 _DEFAULT = os.path.join(os.path.dirname(__file__), "..", "..", "models", "fonbw_default.json")
 
 
@@ -271,7 +272,7 @@ def calibrate(truth, inputs, name, target, rng):
 
 def scenario_kind(seed):
     """The kind :func:`draw_scenario` draws for `seed` (cheap: no simulation)."""
-    return str(np.random.default_rng([seed, 2026]).choice(KINDS, p=[0.15, 0.45, 0.2, 0.1, 0.1]))
+    return str(np.random.default_rng([seed, 2026]).choice(KINDS, p=KIND_P))
 
 
 def draw_scenario(seed, kind=None, scale=1.0, fs=FS):
@@ -290,7 +291,7 @@ def draw_scenario(seed, kind=None, scale=1.0, fs=FS):
     """
     rng = np.random.default_rng([seed, 2026])
     if kind is None:
-        kind = rng.choice(KINDS, p=[0.15, 0.45, 0.2, 0.1, 0.1])
+        kind = rng.choice(KINDS, p=KIND_P)
     base = load_model(_DEFAULT)
     pr = base.params
     ku = np.asarray(pr["ku"]) * (1 + 0.03 * rng.standard_normal(3))
