@@ -61,6 +61,11 @@ class Effect:
     filtered_columns : bool
         Whether later output operators act on this block's additive regressors
         (creep acts before the mechanics; drift does not).
+    output_nonlinear : bool
+        True for a static nonlinearity on the model's own output,
+        y = z + c·f(z) with z everything else the model puts out: its
+        regressor ``f(z)`` depends on the linear parameters, which the
+        fitter then solves by Gauss-Newton (:meth:`shape` gives f and f').
     """
 
     name = "none"
@@ -69,6 +74,7 @@ class Effect:
     units: dict = {}
     input_side = False
     filtered_columns = True
+    output_nonlinear = False
 
     def __init__(self):
         self.bounds = []
@@ -303,21 +309,29 @@ class Amplifier(Effect):
 class Saturation(Effect):
     """Stroke saturation: the displacement is compressed above a knee y_k [µm].
 
-    y = H + c w softplus((H_ref − y_k)/w), softplus(x) = ln(1 + e^x): the
-    slope changes by the factor 1 + c (c < 0 for a limit; c = −1 is a hard
-    stop) over a corner of width w [µm] around the knee. c is solved
-    linearly; the knee and w are searched. Driven by the nominal output like
-    creep. Far above the knee the block is a straight segment, which
-    extrapolates sanely to displacements the training records did not reach
-    (a polynomial bends back); a sharp corner (w → 0) cannot follow a limit
-    that sets in gradually. A knee at the top of the training range with a
-    narrow corner switches the block off.
+    y = z + c w softplus((z − y_k)/w), softplus(x) = ln(1 + e^x), where z is
+    the output of the rest of the model: the slope changes by the factor
+    1 + c (c < 0 for a limit; c = −1 is a hard stop) over a corner of width
+    w [µm] around the knee. c is linear, the knee and w are searched.
+
+    The block acts on the model's *own* output z (``output_nonlinear``), not
+    on the nominal model's: a nominal fitted to clipped records has its peaks
+    in the wrong place, and a knee placed against those peaks mends one test
+    signal while spoiling the others. The fitter solves the linear
+    parameters and c jointly by Gauss-Newton, started from the regressor
+    driven by the nominal output (``columns``). Far above the knee the block
+    is a straight segment, which extrapolates sanely to displacements the
+    training records did not reach (a polynomial bends back); a sharp corner
+    (w → 0) cannot follow a limit that sets in gradually. A knee at the top
+    of the training range with a narrow corner switches the block off.
     """
 
     name = "saturation"
     names = ("knee", "width")
     lin_names = ("c",)
     units = {"knee": "µm", "width": "µm", "c": "1"}
+    filtered_columns = False
+    output_nonlinear = True
 
     def __init__(self, y_lo, y_hi):
         super().__init__()
@@ -328,9 +342,15 @@ class Saturation(Effect):
         widths = span * np.array([0.003, 0.02, 0.08])
         self.grid = np.array([(k, w) for k in knees for w in widths])
 
-    def columns(self, ctx, th):
+    @staticmethod
+    def shape(z, th):
+        """f(z) = w softplus((z − y_k)/w) [µm] and its slope f'(z) [-]."""
         w = float(th[1])
-        return (w * np.logaddexp(0.0, (ctx["y_ref"] - float(th[0])) / w))[:, None]
+        s = (np.asarray(z, dtype=float) - float(th[0])) / w
+        return w * np.logaddexp(0.0, s), 0.5 * (1.0 + np.tanh(0.5 * s))
+
+    def columns(self, ctx, th):
+        return self.shape(ctx["y_ref"], th)[0][:, None]
 
 
 def library(dt, U, t_max, names=EFFECTS, y_range=(0.0, 1.0)):
