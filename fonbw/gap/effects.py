@@ -15,8 +15,11 @@ refit cheap every block is written in one of three forms, which compose:
   :mod:`fonbw.identify`);
 * **additive regressors** — ``columns(ctx, th)`` adds signals whose gains are
   solved linearly (creep: first-order modes driven by the reference output of
-  the model; saturation: the part of that output above a knee; drift: powers
-  of time, not input-driven).
+  the model; drift: powers of time, not input-driven);
+* **output nonlinearity** — ``shape(z, th)`` bends the model's own output z
+  (saturation: y = z + c f(z) above a knee); its gain c and the linear
+  parameters inside z are solved together by Gauss-Newton
+  (:meth:`fonbw.gap.attribute.Fitter.fit_linear`).
 
 Nonlinear parameters (``names``) are searched; linear ones (``lin_names``)
 are solved. Units: u [V], y [µm], t [s], frequencies [Hz].
