@@ -550,7 +550,7 @@ def _as_records(recs, what):
 
 
 def diagnose(train_records, validate_records, model=None, seed=0, progress=False, budget=1000,
-             refit_evals=90, global_evals=1000, coarse_rate=1000.0, effects=fx.EFFECTS, max_effects=3,
+             refit_evals=90, global_evals=None, coarse_rate=1000.0, effects=fx.EFFECTS, max_effects=3,
              min_gap_closed=0.2, floor_tol=0.2, tie_margin=0.05, N=3, memory="fast"):
     """Diagnose the gap between the nominal FONBW model and measured records.
 
@@ -569,13 +569,13 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
         training record once, decimated to `coarse_rate`).
     refit_evals : int
         Evaluations of the local joint refit at the full rate, per candidate.
-    global_evals : int
+    global_evals : int, optional
         Evaluations of the global joint search (jDE over the full bounds)
         per candidate, on the records decimated to `coarse_rate`: an effect
         the nominal fit has absorbed can leave the hysteresis parameters far
         from where they belong, out of reach of a local refit (a 3 ms delay
-        fitted as λ2 = 0.05 against a true 0.6). The default is the nominal
-        identification's budget: a candidate gets the search the nominal got.
+        fitted as λ2 = 0.05 against a true 0.6). Default: `budget`, so a
+        candidate gets the search the nominal model got.
     coarse_rate : float
         Sampling rate [Hz] of the global searches (records are decimated to
         it when sampled faster).
@@ -608,6 +608,7 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
     from ..identify import identify, search_space  # the module, not fonbw.identify (the function)
 
     t_start = time.perf_counter()
+    global_evals = int(budget if global_evals is None else global_evals)
     train = _as_records(train_records, "training")
     val = _as_records(validate_records, "validation")
     dt = train[0].dt

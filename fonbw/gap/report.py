@@ -159,8 +159,9 @@ def add_diagnose_arguments(parser):
     parser.add_argument("--html", metavar="OUT.html", help="also write a self-contained HTML report")
     parser.add_argument("--model", metavar="MODEL.json", help="nominal FONBW/NBW model (identified if omitted)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    parser.add_argument("--budget", type=int, default=1500,
-                        help="evaluations of the nominal identification (default 1500)")
+    parser.add_argument("--budget", type=int, default=1000,
+                        help="evaluations of the nominal identification and of each candidate's "
+                             "global search (default 1000)")
     parser.add_argument("--progress", action="store_true", help="report each step on stderr")
     return parser
 
@@ -179,7 +180,7 @@ def diagnose_command(ns):
     val = [read_record(p) for p in ns.validate]
     model = load_model(ns.model) if getattr(ns, "model", None) else None
     res = diagnose(train, val, model=model, seed=ns.seed, progress=getattr(ns, "progress", False),
-                   budget=getattr(ns, "budget", 1500))
+                   budget=getattr(ns, "budget", 1000))
     write_json(res, ns.json)
     if getattr(ns, "html", None):
         write_html(res, ns.html)
