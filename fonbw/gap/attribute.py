@@ -13,10 +13,12 @@ split into training and validation sets:
 3. **Attribute** — each block of :mod:`fonbw.gap.effects` is added to the
    nominal model and *everything* is refit jointly on the training records:
    the nonlinear parameters of the hysteresis (ρ, σ^(1/n)ρ, n, λ1, λ2) and of
-   the effect by a short warm-started search (a grid over the effect's
-   parameters, then :func:`fonbw.de.jde_minimize`'s gradient polish), the
-   linear ones (ku, kh, creep gains, drift coefficients) by least squares at
-   every evaluation. On the validation records
+   the effect by a global search (jDE on decimated records) and a
+   warm-started local one (a grid over the effect's parameters, then
+   :func:`fonbw.de.jde_minimize`'s gradient polish), the linear ones (ku,
+   kh, creep gains, drift coefficients) by least squares at every
+   evaluation, or by Gauss-Newton with the saturation block, which bends
+   the model's own output. On the validation records
 
        gap_closed = (MSE0 − MSE) / (MSE0 − σ²)
 
@@ -29,8 +31,8 @@ split into training and validation sets:
    segments with step edges, see :func:`_bootstrap`), and its parameters
    agree across training records: with the linear parameters fitted on all
    but one record, the effect still lowers the error on the held-out
-   records over the time the other records span (leave one record out,
-   pooled). Greedy, at
+   records over the time and the displacements the other records span
+   (leave one record out, pooled). Greedy, at
    most ``max_effects`` effects, strongest first; among passing effects that
    close nearly as much (``tie_margin``) the one with the lowest BIC wins
    (lags of a delay, an amplifier and a resonance look alike on the
@@ -493,9 +495,12 @@ def _loro(fitter, fit_base, fit_eff, eff_base, eff_new, yrefs):
     """Leave one training record out: does the effect still help the held-out record?
 
     The linear parameters (ku, kh and the effects' gains) are refit on the
-    other records; the nonlinear ones are kept. Returns the held-out MSE
-    ratios effect/base per record and pooled over the records (< 1: the
-    effect helps), or None with one record.
+    other records; the nonlinear ones are kept. The held-out record is
+    scored over the time and the displacements the other records span (a
+    record may be the only one to reach a stroke limit: agreement cannot be
+    judged there). Returns the held-out MSE ratios effect/base per record
+    and pooled over the records (< 1: the effect helps), or None with one
+    record.
     """
     recs = fitter.records
     if len(recs) < 2:
