@@ -631,7 +631,8 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
     t_max = max(len(r.u) * dt for r in train + val)
     ys = np.concatenate([r.y for r in train])
     # the top is the largest displacement, not a quantile: a stroke limit may
-    # only be reached on a short hold (one step of a 17 s set is 6 % of it)
+    # bind only at brief peaks (FONBW's spikes at step edges), fewer than
+    # 0.1 % of the training samples
     lib = fx.library(dt, U, t_max, effects, y_range=(float(np.quantile(ys, 0.001)), float(np.max(ys))))
     timing = {}
 
