@@ -727,10 +727,8 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
             passed = (checks["material"] and dbic < 0 and checks["bootstrap"]["p10"] > 0
                       and (checks["loro"] is None or checks["loro"]["pooled_ratio"] < 1.0))
             checks["passed"] = bool(passed)
-            ident = lib[i].identified(fit["th"][-1])
-            checks["identified"] = bool(ident)
-            results.append({"i": i, "fit": fit, "pv": pv, "mse": mse, "eff": eff, "checks": checks,
-                            "identified": ident})
+            checks["identified"] = bool(lib[i].identified(fit["th"][-1]))
+            results.append({"i": i, "fit": fit, "pv": pv, "mse": mse, "eff": eff, "checks": checks})
             say(f"step {step + 1}: +{lib[i].name}: gap closed {gc:.3f}, ΔBIC {dbic:.3g}, "
                 f"{'passes' if passed else 'fails'} ({time.perf_counter() - t0:.0f} s)")
         if step == 0:
@@ -756,13 +754,14 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
         # a block whose fit degenerates into another effect (a "resonance"
         # above the Nyquist frequency is a lag) yields to a tied one that is
         # identified
-        best = min(tied, key=lambda r: (not r["identified"], r["checks"]["delta_bic"]))
+        best = min(tied, key=lambda r: (not r["checks"]["identified"], r["checks"]["delta_bic"]))
         # ... and, untied, to an identified passing block that fits the
         # training records better: a lag the resonance block imitates is
         # no evidence of a resonance, while the step edges of the training
         # records (not the validation sines) separate the lags
-        if not best["identified"]:
-            alt = [r for r in ok if r["identified"] and r["checks"]["delta_bic"] < best["checks"]["delta_bic"]]
+        if not best["checks"]["identified"]:
+            alt = [r for r in ok if r["checks"]["identified"]
+                   and r["checks"]["delta_bic"] < best["checks"]["delta_bic"]]
             if alt:
                 best = max(alt, key=lambda r: r["checks"]["gap_closed_step"])
         accepted.append(lib[best["i"]].name)

@@ -3,7 +3,7 @@
 Each block is a cheap wrapper around the nominal hysteresis model H (FONBW,
 eqs. 9-11) with few parameters. The attribution step (:mod:`fonbw.gap.attribute`)
 adds a block to the nominal model and refits everything jointly. To keep that
-refit cheap every block is written in one of three forms, which compose:
+refit cheap every block is written in one of four forms, which compose:
 
 * **input side** — ``transform_input(u, dt, th)`` changes the voltage before
   the hysteresis (amplifier, delay); the hysteresis is simulated again;
@@ -63,7 +63,8 @@ class Effect:
         True when ``transform_input`` is not the identity.
     filtered_columns : bool
         Whether later output operators act on this block's additive regressors
-        (creep acts before the mechanics; drift does not).
+        (creep acts before the mechanics; drift does not). An output
+        nonlinearity acts after everything and is never filtered.
     output_nonlinear : bool
         True for a static nonlinearity on the model's own output,
         y = z + c·f(z) with z everything else the model puts out: its
@@ -97,8 +98,9 @@ class Effect:
         """Whether parameters `th` describe this block's own effect.
 
         False where the block degenerates into another one (a resonance
-        that cannot ring is a lag); the attribution then lets a tied
-        candidate that is identified win.
+        that cannot ring is a lag); the attribution then prefers a tied
+        candidate that is identified, or one that fits the training
+        records better.
         """
         return True
 
@@ -333,7 +335,6 @@ class Saturation(Effect):
     names = ("knee", "width")
     lin_names = ("c",)
     units = {"knee": "µm", "width": "µm", "c": "1"}
-    filtered_columns = False
     output_nonlinear = True
 
     def __init__(self, y_lo, y_hi):

@@ -19,7 +19,8 @@ delay          continuous transport delay of the input,    input delay, linear i
 drift          A (1 − e^(−t/τ_th)) + integrated random     (t/10 s), (t/10 s)² shared by records
                walk per record
 saturation     smooth stroke limit (tanh knee) on the      slope change c over a softplus corner
-               displacement                                of width w at the knee, c solved
+               displacement                                of width w at the knee, on the model's
+                                                           own output, c solved (Gauss-Newton)
 hum            50 Hz + 150 Hz mains pickup, random phase   none: outside the library
 =============  =========================================  ===========================================
 
