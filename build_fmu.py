@@ -78,10 +78,7 @@ def model_resource(params: Path, dt: float, fonbw_src: Path) -> dict:
     p = dict(model.params)
     p.setdefault("lam1", 1.0)
     p.setdefault("lam2", 1.0)
-    try:
-        from fonbw.compensate import DEFAULT_LIMITS  # the compensator's voltage range
-    except ImportError:  # fonbw without its compensator: the paper's 0-120 V
-        DEFAULT_LIMITS = (0.0, 120.0)
+    from fonbw.compensate import DEFAULT_LIMITS  # the compensator's voltage range
     return {"model": fonbw.FONBW(**p).to_dict(), "dt": float(dt),
             "limits": [float(x) for x in DEFAULT_LIMITS]}
 

@@ -35,6 +35,7 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from fonbw.signals import eq19_input
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -55,7 +56,7 @@ TRUE = dict(ku=[0.18, -1.4e-4, -7.7e-8], kh=-2.0, rho=0.02, sigma=0.8, n=1.5,
 
 def make_record(n, dt=1e-4, seed=0):
     t = np.arange(n) * dt
-    u = 60.0 * np.exp(-0.13 * t) * (np.cos(3 * np.pi * t * np.exp(-0.09 * t) - 3.15) + 1.0)
+    u = eq19_input(1.0 / dt, n * dt)[1]
     y = FONBW(**TRUE).simulate(u, dt)
     y += NOISE * np.random.default_rng(seed).standard_normal(n)
     return Record.from_arrays(u=u, y=y, dt=dt)

@@ -46,17 +46,17 @@ import numpy as np
 import fonbw
 from fonbw import fractional as fr
 from fonbw import hysteresis as H
+from fonbw.paper import TABLE1_FONBW
+from fonbw.signals import eq19_input
 
 DT = 1e-4
-TABLE1 = dict(ku=[0.1811, -1.4037e-4, -7.7154e-8], kh=-3.2719e4, rho=6.4808e-7, sigma=1.3039e5,
-              n=2.0006, lam1=0.9557, lam2=0.6220)
+TABLE1 = TABLE1_FONBW
 SIZES = (10_000, 100_000, 1_000_000)
 SWEEP = (0.3, 0.4, 0.5, 0.6, 0.622, 0.7, 0.8, 0.9, 0.9557, 0.99, 1.0)
 
 
 def eq19(n):
-    t = np.arange(n) * DT
-    return 60 * np.exp(-0.13 * t) * (np.cos(3 * np.pi * t * np.exp(-0.09 * t) - 3.15) + 1)
+    return eq19_input(1.0 / DT, n * DT)[1]
 
 
 def best(fn, repeat):

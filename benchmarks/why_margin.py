@@ -18,7 +18,9 @@ Prints Table-3 rows (RMS % of range) per case and the FONBW−CBW margin.
 import argparse
 import time
 
-from fonbw.bench import SINE_FREQS, Bench, BenchParams, eq19_input, multi_input, sine_input
+from fonbw.bench import Bench, BenchParams
+from fonbw.paper import SINE_FREQS
+from fonbw.signals import eq19_input, multi_input, sine_input
 from fonbw.identify import identify
 from fonbw.reproduce import decimate, table3
 

@@ -70,28 +70,11 @@ from numba import njit
 
 from . import plant as _plant
 from .io import Record, write_csv
+from .paper import FS, SINE_FREQS, U_RANGE
+from .signals import EQ19_T, bipolar_input, eq19_input, multi_input, sine_input, step_hold_input
 
-__all__ = [
-    "Bench",
-    "BenchStepper",
-    "BenchParams",
-    "eq19_input",
-    "sine_input",
-    "multi_input",
-    "step_hold_input",
-    "bipolar_input",
-    "play_thresholds",
-    "FS",
-    "SINE_FREQS",
-]
+__all__ = ["Bench", "BenchStepper", "BenchParams", "play_thresholds"]
 
-#: Sampling frequency of the paper's setup [Hz].
-FS = 10_000.0
-#: Validation frequencies of the paper (Table III) [Hz].
-SINE_FREQS = (1.0, 5.0, 10.0, 15.0, 20.0)
-#: Default duration of the eq. (19) record [s]; its envelope 120 e^(-0.13 t) V
-#: has fallen to 8.9 V (7 %) by then.
-EQ19_T = 20.0
 
 
 def play_thresholds(n: int = 12, r_max: float = 55.0) -> np.ndarray:
@@ -99,7 +82,7 @@ def play_thresholds(n: int = 12, r_max: float = 55.0) -> np.ndarray:
     return np.linspace(0.0, float(r_max), int(n))
 
 
-def _default_weights(r: np.ndarray, r_c: float = 10.0, span: float = 120.0) -> np.ndarray:
+def _default_weights(r: np.ndarray, r_c: float = 10.0, span: float = U_RANGE[1]) -> np.ndarray:
     # From rest at z_i = r_i, the ascending branch to `span` gives
     # w - w0 = Σ p_i (span - 2 r_i); scale so that this equals span.
     p = np.exp(-r / r_c)
@@ -269,8 +252,8 @@ class Bench:
         noise_std: float = 0.015,
         quant_bits: int | None = 16,
         dac_bits: int | None = 16,
-        u_min: float = 0.0,
-        u_max: float = 120.0,
+        u_min: float = U_RANGE[0],
+        u_max: float = U_RANGE[1],
         params: BenchParams | None = None,
     ):
         self.fs = float(fs)
@@ -622,81 +605,3 @@ class BenchStepper:
             q = b.adc_step
             y = lo + min(max(round((y - lo) / q), 0), 2**b.quant_bits - 1) * q
         return y
-
-
-
-# ---------------------------------------------------------------------------
-# experiment inputs; each returns (t [s], u [V])
-
-
-def _n_samples(T, fs):
-    if not (math.isfinite(T) and T > 0):
-        raise ValueError(f"duration must be positive [s], got {T!r}")
-    if not (math.isfinite(fs) and fs > 0):
-        raise ValueError(f"fs must be positive [Hz], got {fs!r}")
-    return int(round(T * fs))
-
-
-def eq19_input(fs: float = FS, T: float = EQ19_T):
-    """Identification input of eq. (19), u = 60 e^(-0.13t) [cos(3πt e^(-0.09t) - 3.15) + 1] V.
-
-    It starts at 0.003 V, peaks near 120 V at 1.5 Hz and decays; the
-    instantaneous frequency falls to zero at t = 1/0.09 = 11.1 s, after which
-    the phase runs backwards. The default 20 s keeps the part whose envelope
-    is above 7 % of the start (8.9 V).
-    """
-    n = _n_samples(T, fs)
-    t = np.arange(n) / fs
-    return t, 60.0 * np.exp(-0.13 * t) * (np.cos(3 * np.pi * t * np.exp(-0.09 * t) - 3.15) + 1.0)
-
-
-def sine_input(f: float, fs: float = FS, periods: float | None = 5, T: float | None = None,
-               amplitude: float = 60.0, offset: float = 60.0):
-    """Validation input u = offset - amplitude cos(2πft) V (paper: 60 - 60 cos).
-
-    Give either `periods` (default 5) or the duration `T` [s].
-    """
-    if not (math.isfinite(f) and f > 0):
-        raise ValueError(f"f must be a positive frequency [Hz], got {f!r}")
-    if T is None:
-        if periods is None or not periods > 0:
-            raise ValueError("give a positive number of periods or a duration T")
-        T = periods / f
-    n = _n_samples(T, fs)
-    t = np.arange(n) / fs
-    return t, offset - amplitude * np.cos(2 * np.pi * f * t)
-
-
-def multi_input(freqs=(1.0, 5.0, 10.0, 20.0), fs: float = FS, T: float = 5.0,
-                weights=None, u_max: float = 120.0):
-    """Multi-tone input u = u_max/2 (1 - Σ a_i cos(2π f_i t) / Σ a_i), within [0, u_max] V.
-
-    Starts at 0 V (all cosines at 1); default weights a_i = 1 / i so the low
-    frequencies carry the stroke.
-    """
-    freqs = np.asarray(freqs, dtype=float)
-    if freqs.ndim != 1 or freqs.size == 0 or np.any(freqs <= 0):
-        raise ValueError("freqs must be positive frequencies [Hz]")
-    a = 1.0 / np.arange(1, freqs.size + 1) if weights is None else np.asarray(weights, dtype=float)
-    if a.shape != freqs.shape or np.any(a < 0) or a.sum() <= 0:
-        raise ValueError("weights must be non-negative, one per frequency, not all zero")
-    n = _n_samples(T, fs)
-    t = np.arange(n) / fs
-    s = (a[:, None] * np.cos(2 * np.pi * freqs[:, None] * t[None, :])).sum(axis=0) / a.sum()
-    return t, 0.5 * u_max * (1.0 - s)
-
-
-def step_hold_input(levels=(60.0,), hold: float = 10.0, fs: float = FS, rest: float = 0.1):
-    """Steps to each level in turn, held `hold` s, after `rest` s at 0 V (creep tests)."""
-    levels = np.atleast_1d(np.asarray(levels, dtype=float))
-    n0 = int(round(rest * fs))
-    nh = _n_samples(hold, fs)
-    u = np.concatenate([np.zeros(n0)] + [np.full(nh, L) for L in levels])
-    return np.arange(u.size) / fs, u
-
-
-def bipolar_input(fs: float = FS, T: float = 6.0, f: float = 1.0, amplitude: float = 150.0):
-    """Bipolar drive u = amplitude sin(2πft) [V] (±150 V by default), starting at 0 V."""
-    n = _n_samples(T, fs)
-    t = np.arange(n) / fs
-    return t, amplitude * np.sin(2 * np.pi * f * t)

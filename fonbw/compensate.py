@@ -84,6 +84,8 @@ import numba as nb
 import numpy as np
 
 from . import hysteresis as _hy
+from .paper import PAPER_TABLE4, U_RANGE
+from .signals import TRAJECTORIES, trajectory_5hz, trajectory_multi  # noqa: F401
 
 __all__ = [
     "compensate",
@@ -110,7 +112,7 @@ _STATUS_NAMES = {OK: "ok", SAT_LOW: "saturated at u_min", SAT_HIGH: "saturated a
                  NOT_CONVERGED: "not converged"}
 
 #: The paper's amplifier range [V] (Sec. IV-A: 0–120 V).
-DEFAULT_LIMITS = (0.0, 120.0)
+DEFAULT_LIMITS = U_RANGE
 #: Default tolerance on |H(u_k) − H_d,k| [µm] (0.1 pm).
 DEFAULT_TOL = 1e-10
 _MAX_ITER = 100
@@ -764,34 +766,6 @@ def compensate_file(model_path, traj_path, out_path, *, limits=DEFAULT_LIMITS, e
     return res
 
 
-# ---------------------------------------------------------------------------
-# the paper's Table 4 on the virtual bench
-
-def trajectory_5hz(t):
-    """Single-frequency trajectory of Sec. IV-D: H_d = 5 − 5 cos(10πt) µm."""
-    t = np.asarray(t, dtype=float)
-    return 5.0 - 5.0 * np.cos(10.0 * np.pi * t)
-
-
-def trajectory_multi(t):
-    """Multi-frequency trajectory of Sec. IV-D:
-    H_d = 4 − cos 2πt − cos 6πt − cos 10πt − cos 20πt µm."""
-    t = np.asarray(t, dtype=float)
-    return (4.0 - np.cos(2 * np.pi * t) - np.cos(6 * np.pi * t) - np.cos(10 * np.pi * t)
-            - np.cos(20 * np.pi * t))
-
-
-#: The two desired trajectories of Table 4, by the paper's names.
-TRAJECTORIES = {"5-Hz": trajectory_5hz, "Multi-freq.": trajectory_multi}
-
-#: Table 4 of the paper: (compensator, trajectory, RMS error [µm], RMS input [V]).
-PAPER_TABLE4 = (
-    ("FONBW", "5-Hz", 0.22, 41.09), ("FONBW", "Multi-freq.", 0.16, 24.54),
-    ("CBW", "5-Hz", 0.33, 43.15), ("CBW", "Multi-freq.", 0.36, 29.32),
-    ("Zhu", "5-Hz", 0.27, 44.66), ("Zhu", "Multi-freq.", 0.26, 30.45),
-)
-
-
 def _rms(x):
     return float(np.sqrt(np.mean(np.square(x)))) if len(x) else math.nan
 
@@ -948,7 +922,8 @@ def reproduce_table4(out_dir=None, *, seed=0, max_evals=3000, T=2.0, models=None
     ``models`` is given, then runs :func:`table4`. With ``out_dir`` also
     writes the identified models as ``model_<name>.json``.
     """
-    from .bench import Bench, eq19_input
+    from .bench import Bench
+    from .signals import eq19_input
 
     bench = Bench(seed=seed)
     if models is None:

@@ -75,6 +75,8 @@ import numpy as np
 
 from . import plant as _plant
 from .hysteresis import FONBW, load_model
+from .paper import U_RANGE
+from .signals import SCENARIOS, trajectory  # noqa: F401
 
 __all__ = [
     "MODES",
@@ -103,7 +105,7 @@ MASTERS = ("reference", "fmpy", "libcosim")
 PLANTS = ("none", "dynamics", "creep", "dynamics+creep")
 DT = 1e-4
 #: Output limits of the controller [V] (the amplifier's 0-120 V range).
-U_LIMITS = (0.0, 120.0)
+U_LIMITS = U_RANGE
 #: Stand-in for "no limit" in the controller's limits (FMU parameters must be finite).
 NO_LIMIT = 1e300
 #: Default crossover of the feedback loop [Hz] (see :func:`design_controller`).
@@ -117,42 +119,6 @@ DEFAULT_MODEL = _ROOT / "models" / "fonbw_default.json"
 class CosimError(ValueError):
     """The co-simulation could not run: bad or refused FMU, missing dependency,
     a run stopped by a block (a ValueError, so the CLI reports it in one line)."""
-
-
-# ---------------------------------------------------------------------------
-# trajectories H_d(t) [µm]
-
-def _sine(f):
-    return lambda t: 5.0 - 5.0 * np.cos(2 * np.pi * f * t)
-
-
-def _multi(t):
-    # paper, Sec. IV-D: 4 - cos 2πt - cos 6πt - cos 10πt - cos 20πt µm
-    return (4.0 - np.cos(2 * np.pi * t) - np.cos(6 * np.pi * t) - np.cos(10 * np.pi * t)
-            - np.cos(20 * np.pi * t))
-
-
-def _step(t):
-    return np.where(t >= 0.01, 10.0, 0.0)
-
-
-#: name -> (H_d(t) [µm], default duration [s], description)
-SCENARIOS = {
-    "sine1": (_sine(1.0), 2.0, "H_d = 5 - 5 cos(2π t) µm"),
-    "sine5": (_sine(5.0), 1.0, "H_d = 5 - 5 cos(10π t) µm (paper, Table 4)"),
-    "sine10": (_sine(10.0), 1.0, "H_d = 5 - 5 cos(20π t) µm"),
-    "sine20": (_sine(20.0), 0.5, "H_d = 5 - 5 cos(40π t) µm"),
-    "multi": (_multi, 2.0, "H_d = 4 - cos 2πt - cos 6πt - cos 10πt - cos 20πt µm (paper, Table 4)"),
-    "step": (_step, 0.5, "H_d = 10 µm from t = 0.01 s"),
-}
-
-
-def trajectory(scenario, t) -> np.ndarray:
-    """Desired displacement H_d [µm] of a scenario at times `t` [s] (H_d(0) for t < 0)."""
-    if scenario not in SCENARIOS:
-        raise ValueError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
-    t = np.maximum(np.asarray(t, dtype=float), 0.0)
-    return np.asarray(SCENARIOS[scenario][0](t), dtype=float) + 0.0 * t
 
 
 # ---------------------------------------------------------------------------

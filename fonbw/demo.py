@@ -110,7 +110,7 @@ def _stage_cosim(model, out, b):
 
 
 def _stage_gap(bench, model, out, seed, b, progress):
-    from .bench import eq19_input, multi_input, sine_input, step_hold_input
+    from .signals import eq19_input, multi_input, sine_input, step_hold_input
     from .gap import diagnose, write_html as gap_html
     from .reproduce import decimate
 

@@ -17,20 +17,14 @@ import time
 
 import numpy as np
 
-from .bench import SINE_FREQS, Bench, eq19_input, sine_input
+from .bench import Bench
+from .paper import PAPER_TABLE2, SINE_FREQS
+from .signals import eq19_input, sine_input
 from .io import Record, atomic_open
 
 __all__ = ["decimate", "identify_models", "table1", "table2", "table3", "reproduce", "KIND_LABELS"]
 
 KIND_LABELS = {"fonbw": "FONBW", "cbw": "CBW", "zhu": "Zhu et al. (eq. 20)", "nbw": "asymmetric NBW"}
-
-#: The paper's Table 2 (literature counts), kept beside the measured ones.
-PAPER_TABLE2 = [
-    ("Wang et al.", "asymmetric", 6), ("Zhu et al. (2012)", "asymmetric", 7), ("Habineza et al.", "asymmetric", 8),
-    ("Li et al.", "asymmetric / rate-dependent", 22), ("Zhu et al. (2016), eq. (20)", "asymmetric / rate-dependent", 11),
-    ("FONBW (proposed)", "asymmetric / rate-dependent", 9),
-]
-
 
 def decimate(rec: Record, q: int) -> Record:
     """Every q-th sample of a record (u is a zero-order-hold input; y is already

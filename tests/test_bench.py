@@ -5,10 +5,12 @@ import numpy as np
 import pytest
 
 from fonbw import bench as B
+from fonbw import paper
+from fonbw import signals as S
 from fonbw import plant as P
 from fonbw.io import read_record
 
-FS = B.FS
+FS = paper.FS
 
 
 def _reference_hysteresis(v, params, dt, rate=True, asym=True):
@@ -36,7 +38,7 @@ def _reference_hysteresis(v, params, dt, rate=True, asym=True):
 
 def _loop_metrics(bench, f, periods=3):
     """Loop width and asymmetry (fractions of stroke), fundamental phase [deg]."""
-    _, u = B.sine_input(f, FS, periods=periods)
+    _, u = S.sine_input(f, FS, periods=periods)
     y = bench.run(u, noiseless=True)
     n = int(round(FS / f))
     uu, yy, h = u[-n:], y[-n:], n // 2
@@ -54,7 +56,7 @@ def _loop_metrics(bench, f, periods=3):
 
 def test_ideal_bench_is_the_bare_operator():
     b = B.Bench.ideal()
-    _, u = B.eq19_input(FS, T=1.5)
+    _, u = S.eq19_input(FS, T=1.5)
     y = b.run(u)
     assert np.array_equal(y, b.hysteresis(u))
     ref = _reference_hysteresis(u, b.params, b.dt)
@@ -65,14 +67,14 @@ def test_ideal_bench_is_the_bare_operator():
 
 
 def test_stroke_is_about_20_um_at_120_V():
-    _, u = B.sine_input(1.0, FS, periods=2)
+    _, u = S.sine_input(1.0, FS, periods=2)
     y = B.Bench.ideal(rate_dependent=False).run(u)
     assert y.max() == pytest.approx(19.87, abs=0.05)  # a1*120 + a2*120² + a3*120³
     assert y[0] == pytest.approx(0.0, abs=1e-12)  # zeroed at rest
 
 
 def test_reproducible_for_a_seed():
-    _, u = B.sine_input(5.0, FS, periods=2)
+    _, u = S.sine_input(5.0, FS, periods=2)
     y1, y2 = B.Bench(seed=7).run(u), B.Bench(seed=7).run(u)
     assert np.array_equal(y1, y2)
     assert not np.array_equal(y1, B.Bench(seed=8).run(u))
@@ -95,7 +97,7 @@ def test_quantization_step_is_range_over_2_to_bits():
     lo, hi = b.params.adc_range
     q = (hi - lo) / 2**8
     assert b.adc_step == q
-    _, u = B.sine_input(10.0, FS, periods=1)
+    _, u = S.sine_input(10.0, FS, periods=1)
     y = b.run(u)
     codes = (y - lo) / q
     assert np.max(np.abs(codes - np.round(codes))) < 1e-9
@@ -106,7 +108,7 @@ def test_quantization_step_is_range_over_2_to_bits():
 
 def test_saturation_is_honoured():
     b = B.Bench(seed=0)
-    _, u = B.sine_input(5.0, FS, periods=2, amplitude=90.0)  # -30 … 150 V commanded
+    _, u = S.sine_input(5.0, FS, periods=2, amplitude=90.0)  # -30 … 150 V commanded
     v = b.actuator_voltage(u)
     assert v.max() <= 120.0 + 1e-9 and v.min() >= -1e-9
     assert np.array_equal(b.run(u, noiseless=True), b.run(np.clip(u, 0, 120), noiseless=True))
@@ -138,7 +140,7 @@ def test_loop_is_asymmetric_and_rate_dependent():
 
 
 def test_creep_step_and_hold_matches_closed_form():
-    t, u = B.step_hold_input(levels=(60.0,), hold=10.0, fs=FS, rest=0.1)
+    t, u = S.step_hold_input(levels=(60.0,), hold=10.0, fs=FS, rest=0.1)
     b = B.Bench(seed=0)
     y = b.run(u, noiseless=True)
     yh = b.hysteresis(b.actuator_voltage(u))[-1]  # quasi-static level after the step
@@ -153,7 +155,7 @@ def test_creep_step_and_hold_matches_closed_form():
 
 
 def test_delay_shifts_by_whole_samples():
-    _, u = B.sine_input(10.0, FS, periods=1)
+    _, u = S.sine_input(10.0, FS, periods=1)
     y0 = B.Bench.ideal().run(u)
     y3 = B.Bench.ideal(delay=3).run(u)
     assert np.array_equal(y3[3:], B.Bench.ideal().run(u[:-3]))
@@ -173,17 +175,17 @@ def test_amplifier_and_mechanics_are_the_plant_blocks():
 
 
 def test_inputs():
-    t, u = B.eq19_input(FS, T=20.0)
+    t, u = S.eq19_input(FS, T=20.0)
     assert t.size == 200_000 and t[1] == pytest.approx(1e-4)
     assert u[0] == pytest.approx(60 * (math.cos(-3.15) + 1))
     assert u.max() <= 120.0 and u.min() >= 0.0
     assert u[-2000:].max() < 120 * math.exp(-0.13 * 19.8) + 1e-9
-    t, u = B.sine_input(20.0, FS, periods=5)
+    t, u = S.sine_input(20.0, FS, periods=5)
     assert t.size == 2500 and u[0] == 0.0 and u[250] == pytest.approx(120.0)
-    _, m = B.multi_input(fs=FS)
+    _, m = S.multi_input(fs=FS)
     assert m[0] == 0.0 and m.min() >= -1e-12 and m.max() <= 120.0
     with pytest.raises(ValueError, match="positive"):
-        B.sine_input(-1.0)
+        S.sine_input(-1.0)
 
 
 def test_write_experiments_and_read_back(tmp_path):
@@ -195,7 +197,7 @@ def test_write_experiments_and_read_back(tmp_path):
     assert "logger_bipolar.csv" in names
     rec = read_record(paths[0])
     assert rec.n == 20_000 and rec.dt == pytest.approx(1e-4)
-    assert np.allclose(rec.u, B.eq19_input(FS, 2.0)[1], rtol=1e-15, atol=0)
+    assert np.allclose(rec.u, S.eq19_input(FS, 2.0)[1], rtol=1e-15, atol=0)
     assert 15 < rec.y.max() < 21
     log = read_record(paths[-1])  # jittered time stamps are within tolerance
     assert log.u.min() == pytest.approx(-150.0) and log.u.max() == pytest.approx(150.0)
@@ -221,7 +223,7 @@ def test_validation_messages():
 
 
 def test_stepper_equals_run_bit_for_bit():
-    _, u = B.eq19_input(FS, T=0.3)
+    _, u = S.eq19_input(FS, T=0.3)
     u = u * 1.1  # into saturation too
     for kw in ({}, {"drift": True, "delay": 3, "params": B.BenchParams(slew_rate=2e5)},
                {"rate_dependent": False, "asymmetric": False, "quant_bits": 10}):
@@ -232,7 +234,7 @@ def test_stepper_equals_run_bit_for_bit():
 
 def test_stepper_state_replays():
     st = B.Bench(seed=5, delay=2).stepper()
-    _, u = B.sine_input(10.0, FS, periods=1)
+    _, u = S.sine_input(10.0, FS, periods=1)
     for v in u[:400]:
         st.step(v)
     s = st.get_state()
@@ -258,7 +260,7 @@ def test_pi_loop_around_the_bench_tracks():
     d = P.design_pi(P.pea_dynamics(), b.dt, 100.0)
     c = d.controller(u_min=0.0, u_max=120.0)
     st = b.stepper()
-    t, _ = B.sine_input(1.0, FS, periods=2)
+    t, _ = S.sine_input(1.0, FS, periods=2)
     r = 10.0 - 8.0 * np.cos(2 * np.pi * t)
     y = np.empty_like(r)
     yk = 0.0

@@ -8,9 +8,9 @@ import pytest
 
 import fonbw
 from fonbw.io import read_record, write_csv
+from fonbw.paper import TABLE1_FONBW
 
-TABLE1 = dict(ku=[0.1811, -1.4037e-4, -7.7154e-8], kh=-3.2719e4, rho=6.4808e-7, sigma=1.3039e5,
-              n=2.0006, lam1=0.9557, lam2=0.6220)
+TABLE1 = TABLE1_FONBW
 
 
 def run(*args, cwd=None):

@@ -15,6 +15,7 @@ from scipy.optimize import brentq
 
 import fonbw
 from fonbw.io import read_record, write_csv
+from fonbw.paper import TABLE1_FONBW
 
 C = importlib.import_module("fonbw.compensate")  # fonbw.compensate is the function
 
@@ -267,8 +268,7 @@ def test_paper_table1_fonbw_is_not_invertible_and_says_so():
     # Table 1: k_h ρ < 0 with λ1 > λ2, so at 10 kHz one step of u moves H the
     # wrong way (right-half-plane zero); the exact inverse cannot track within
     # 0-120 V and every such sample must be reported, not passed off as solved
-    m = fonbw.FONBW(ku=[0.1811, -1.4037e-4, -7.7154e-8], kh=-3.2719e4, rho=6.4808e-7,
-                    sigma=1.3039e5, n=2.0006, lam1=0.9557, lam2=0.6220)
+    m = fonbw.FONBW(**TABLE1_FONBW)
     s = m.stepper(DT)
     s.step(0.0)
     assert s.peek(1.0) < s.peek(0.0)  # the one-step map decreases in u

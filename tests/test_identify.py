@@ -12,6 +12,8 @@ from fonbw.hysteresis import CBW, FONBW, NBW
 from fonbw.identify import (IdentifyResult, _as_records, _Projected, identify,
                             rms_cost, search_space)
 from fonbw.io import Record
+from fonbw.paper import TABLE1_FONBW
+from fonbw.signals import eq19_input
 
 NOISE = 0.02   # µm, white measurement noise of the synthetic records
 DT = 5e-3      # s; 200 Hz keeps the test short (the paper samples at 10 kHz)
@@ -21,8 +23,7 @@ TRUE = dict(ku=[0.18, -1.4e-4, -7.7e-8], kh=-2.0, rho=0.02, sigma=0.8, n=1.5,
 
 def eq19(T=10.0, dt=DT):
     """Identification input, eq. (19) [V]."""
-    t = np.arange(0.0, T, dt)
-    return 60.0 * np.exp(-0.13 * t) * (np.cos(3 * np.pi * t * np.exp(-0.09 * t) - 3.15) + 1.0)
+    return eq19_input(1.0 / dt, T)[1]
 
 
 def sine(f, periods=3, dt=DT):
@@ -244,8 +245,7 @@ def test_paper_table1_regime_is_identified():
     the difference λ1 − λ2 of the orders, not ρ, σ, λ1, λ2 one by one. The
     fit must reach the noise floor and predict unseen sines anyway.
     """
-    truth = FONBW(ku=[0.1811, -1.4037e-4, -7.7154e-8], kh=-3.2719e4, rho=6.4808e-7,
-                  sigma=1.3039e5, n=2.0006, lam1=0.9557, lam2=0.6220)
+    truth = FONBW(**TABLE1_FONBW)
     rec = noisy_record(truth, eq19(), seed=10)
     res = identify(rec, "fonbw", seed=1, max_evals=3000)
     rms_truth = np.sqrt(np.mean((truth.simulate(rec.u, DT) - rec.y) ** 2))

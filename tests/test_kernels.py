@@ -13,15 +13,15 @@ from scipy import linalg, optimize
 import fonbw
 from fonbw import fractional as fr
 from fonbw import hysteresis as H
+from fonbw.paper import TABLE1_FONBW
+from fonbw.signals import eq19_input
 
 DT = 1e-4
-TABLE1 = dict(ku=[0.1811, -1.4037e-4, -7.7154e-8], kh=-3.2719e4, rho=6.4808e-7, sigma=1.3039e5,
-              n=2.0006, lam1=0.9557, lam2=0.6220)
+TABLE1 = TABLE1_FONBW
 
 
 def eq19(n):
-    t = np.arange(n) * DT
-    return 60 * np.exp(-0.13 * t) * (np.cos(3 * np.pi * t * np.exp(-0.09 * t) - 3.15) + 1)
+    return eq19_input(1.0 / DT, n * DT)[1]
 
 
 def rel(a, ref):

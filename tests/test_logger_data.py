@@ -7,7 +7,8 @@ import sys
 import numpy as np
 import pytest
 
-from fonbw.bench import Bench, bipolar_input
+from fonbw.bench import Bench
+from fonbw.signals import bipolar_input
 from fonbw.io import read_record, rest_offset, write_csv
 
 

@@ -40,7 +40,7 @@ import numpy as np
 from scipy import signal
 from scipy.interpolate import PchipInterpolator
 
-from .. import bench as _bench
+from .. import signals as _sig
 from ..hysteresis import FONBW, load_model
 from ..io import Record
 
@@ -67,15 +67,15 @@ def default_experiments(fs=FS, scale=1.0):
     """
     s = float(scale)
     train = [
-        ("eq19", _bench.eq19_input(fs, 8.0 * s)[1]),
-        ("steps", _bench.step_hold_input((40.0, 100.0, 60.0), hold=1.0 * s, fs=fs)[1]),
-        ("multi", _bench.multi_input((1.0, 5.0, 10.0, 20.0), fs=fs, T=2.0 * s, weights=(1.0, 0.7, 0.5, 0.5))[1]),
+        ("eq19", _sig.eq19_input(fs, 8.0 * s)[1]),
+        ("steps", _sig.step_hold_input((40.0, 100.0, 60.0), hold=1.0 * s, fs=fs)[1]),
+        ("multi", _sig.multi_input((1.0, 5.0, 10.0, 20.0), fs=fs, T=2.0 * s, weights=(1.0, 0.7, 0.5, 0.5))[1]),
     ]
     val = [
-        ("sine01", _bench.sine_input(1.0, fs, periods=None, T=2.0 * s)[1]),
-        ("sine20", _bench.sine_input(20.0, fs, periods=None, T=0.5 * s)[1]),
-        ("multi_v", _bench.multi_input((2.0, 7.0, 15.0, 25.0), fs=fs, T=2.0 * s)[1]),
-        ("steps_v", _bench.step_hold_input((80.0, 20.0), hold=1.0 * s, fs=fs)[1]),
+        ("sine01", _sig.sine_input(1.0, fs, periods=None, T=2.0 * s)[1]),
+        ("sine20", _sig.sine_input(20.0, fs, periods=None, T=0.5 * s)[1]),
+        ("multi_v", _sig.multi_input((2.0, 7.0, 15.0, 25.0), fs=fs, T=2.0 * s)[1]),
+        ("steps_v", _sig.step_hold_input((80.0, 20.0), hold=1.0 * s, fs=fs)[1]),
     ]
     return train, val
 

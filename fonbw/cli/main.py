@@ -30,14 +30,14 @@ class _Parser(argparse.ArgumentParser):
 # helpers shared by the commands
 
 def _model(path):
-    from .hysteresis import load_model
+    from ..hysteresis import load_model
 
     return load_model(path)
 
 
 def _records(paths, need=("u", "y"), zero=False):
     """Read records; with ``zero`` remove each one's sensor offset at rest (io.zero_at_rest)."""
-    from .io import read_record, zero_at_rest
+    from ..io import read_record, zero_at_rest
 
     recs = [read_record(p, need=need) for p in paths]
     if not zero:
@@ -66,11 +66,11 @@ def _fmt(v):
 # commands
 
 def cmd_simulate(ns):
-    from .io import write_csv
+    from ..io import write_csv
 
     m = _model(ns.model)
     if ns.memory and hasattr(m, "memory"):
-        from .hysteresis import model_from_dict
+        from ..hysteresis import model_from_dict
 
         d = m.to_dict()
         d["params"]["memory"] = ns.memory
@@ -82,7 +82,7 @@ def cmd_simulate(ns):
 
 
 def cmd_validate(ns):
-    from .reproduce import rms_metrics
+    from ..reproduce import rms_metrics
 
     m = _model(ns.model)
     recs = _records(ns.data, zero=not ns.keep_offset)
@@ -101,7 +101,7 @@ def cmd_validate(ns):
 
 
 def cmd_identify(ns):
-    from .identify import identify
+    from ..identify import identify
 
     recs = _records(ns.data, zero=not ns.keep_offset)
     if ns.seed is not None and ns.seed < 0:
@@ -125,7 +125,7 @@ def cmd_identify(ns):
 
 
 def cmd_compensate(ns):
-    from .compensate import compensate_file
+    from ..compensate import compensate_file
 
     if not ns.umin < ns.umax:
         raise CLIError(f"--umin ({ns.umin}) must be below --umax ({ns.umax})")
@@ -138,14 +138,14 @@ def cmd_compensate(ns):
 
 
 def cmd_figures(ns):
-    from .figures import make_figures
+    from ..figures import make_figures
 
     for p in make_figures(ns.output):
         print(f"wrote {p}")
 
 
 def cmd_bench(ns):
-    from .bench import Bench
+    from ..bench import Bench
 
     b = Bench(seed=ns.seed)
     for p in b.write_experiments(ns.output, logger=True):
@@ -153,12 +153,12 @@ def cmd_bench(ns):
 
 
 def _delegate(module, func):
-    """A command implemented in another module (`<module>.<func>(ns)`)."""
+    """A command implemented in another module (`<module>.<func>(ns)`, `module` absolute)."""
 
     def run(ns):
         import importlib
 
-        return getattr(importlib.import_module(f".{module}", __package__), func)(ns)
+        return getattr(importlib.import_module(module), func)(ns)
 
     return run
 
@@ -168,8 +168,8 @@ def _delegate(module, func):
 def build_parser(command=None) -> argparse.ArgumentParser:
     """The argument parser; ``command`` is the sub-command about to run (its
     arguments are attached only for it when defining them is costly)."""
-    from . import __version__
-    from .fractional import ENGINES
+    from .. import __version__
+    from ..fractional import ENGINES
 
     p = _Parser(prog="fonbw", description="Fractional-order normalized Bouc-Wen hysteresis of piezoelectric "
                 "actuators: simulate, identify, compensate, co-simulate FMUs, diagnose the sim-to-real gap.")
@@ -219,17 +219,17 @@ def build_parser(command=None) -> argparse.ArgumentParser:
     # that command is the one being run.
     s = sub.add_parser("cosim", help="closed-loop co-simulation of the FMUs (reference, fmpy, libcosim)")
     if command == "cosim":
-        from .cosim import add_cosim_arguments
+        from ..cosim import add_cosim_arguments
 
         add_cosim_arguments(s)
-    s.set_defaults(func=_delegate("cosim", "cosim_command"))
+    s.set_defaults(func=_delegate("fonbw.cosim", "cosim_command"))
 
     s = sub.add_parser("diagnose", help="localize and attribute the sim-to-real gap")
     if command == "diagnose":
-        from .gap import add_diagnose_arguments
+        from ..gap import add_diagnose_arguments
 
         add_diagnose_arguments(s)
-    s.set_defaults(func=_delegate("gap", "diagnose_command"))
+    s.set_defaults(func=_delegate("fonbw.gap", "diagnose_command"))
 
     s = sub.add_parser("figures", help="the paper's Figs. 1-4 as PNG files")
     s.add_argument("-o", "--output", default="figures", metavar="DIR")
@@ -244,13 +244,13 @@ def build_parser(command=None) -> argparse.ArgumentParser:
     s.add_argument("-o", "--output", default="reproduce-out", metavar="DIR")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--quick", action="store_true", help="small budgets (a smoke run)")
-    s.set_defaults(func=_delegate("demo", "reproduce_command"))
+    s.set_defaults(func=_delegate("fonbw.demo", "reproduce_command"))
 
     s = sub.add_parser("demo", help="the whole workflow on the virtual bench, with an HTML report")
     s.add_argument("-o", "--output", default="demo-out", metavar="DIR")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--quick", action="store_true", help="reduced budgets (about a minute)")
-    s.set_defaults(func=_delegate("demo", "demo_command"))
+    s.set_defaults(func=_delegate("fonbw.demo", "demo_command"))
     return p
 
 
@@ -263,7 +263,7 @@ def main(argv=None) -> int:
         parser.print_help()
         return 2
     prog = f"fonbw {ns.command}"
-    from .io import DataError
+    from ..io import DataError
 
     try:
         ns.func(ns)
