@@ -39,6 +39,7 @@ from pythonfmu.enums import Fmi2Initial, Fmi2Status
 # Name of the parameter-set file inside an FMU's resources folder.
 MODEL_RESOURCE = "fonbw_model.json"
 PLANT_RESOURCE = "fonbw_plant.json"
+PID_RESOURCE = "fonbw_pid.json"
 
 # A communication step h is accepted when h/dt is within this many internal
 # steps of a whole number >= 1.  Not zero: masters compute h as a difference of

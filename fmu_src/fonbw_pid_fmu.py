@@ -18,10 +18,8 @@ Own module name: FMUs in one process share sys.modules.
 """
 from pathlib import Path
 
-from fonbw_fmu_common import FonbwSlaveBase, UReal, read_json
+from fonbw_fmu_common import PID_RESOURCE, FonbwSlaveBase, UReal, read_json
 from pythonfmu import Fmi2Causality, Fmi2Variability
-
-PID_RESOURCE = "fonbw_pid.json"
 
 
 class _ControllerStepper:

@@ -58,15 +58,11 @@ Units: u [V], y, r [µm], t [s].
 from __future__ import annotations
 
 import argparse
-import getpass
-import hashlib
 import json
 import math
 import os
 import shutil
-import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -91,7 +87,6 @@ __all__ = [
     "design_controller",
     "LoopController",
     "build_fmus",
-    "build_pid_fmu",
     "run_cosim",
     "ff_fb_study",
     "add_cosim_arguments",
@@ -111,9 +106,8 @@ NO_LIMIT = 1e300
 #: Default crossover of the feedback loop [Hz] (see :func:`design_controller`).
 BANDWIDTH_HZ = 100.0
 
-_PKG = Path(__file__).resolve().parent
-_ROOT = _PKG.parent
-DEFAULT_MODEL = _ROOT / "models" / "fonbw_default.json"
+from .data import DEFAULT_MODEL  # noqa: E402
+from .fmu.build import loop_plant_resource  # noqa: E402
 
 
 class CosimError(ValueError):
@@ -424,123 +418,17 @@ def _run_reference(w, cfg, n, rest, dt):
 # ---------------------------------------------------------------------------
 # FMUs: build and cache
 
-def _load_build_fmu():
-    import importlib.util
-
-    path = _ROOT / "build_fmu.py"
-    if not path.is_file():
-        raise CosimError(f"building FMUs needs the source tree ({path} not found)")
-    spec = importlib.util.spec_from_file_location("fonbw_build_fmu", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def build_pid_fmu(out_dir, controller: dict | None = None) -> Path:
-    """Build FonbwPID.fmu (fmu_src/fonbw_pid_fmu.py) into `out_dir` and validate
-    it with fmpy, as build_fmu.py does for the other FMUs.
-
-    The builder imports the slave script: call this in a process that will
-    not load the FMU itself (:func:`build_fmus` runs it in a subprocess).
-    `controller` gives the parameter start values (a :func:`controller_spec`).
-    """
-    from fmpy.validation import validate_fmu
-    from pythonfmu.builder import FmuBuilder
-
-    bf = _load_build_fmu()
-    spec = controller or controller_spec(1e-3, 100.0)
-    spec = {k: spec[k] for k in LoopController._KEYS}
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix="fonbw_pid_") as stage:
-        res = Path(stage) / "fonbw_pid.json"
-        res.write_text(json.dumps(spec, indent=1), encoding="utf-8")
-        sys.path.insert(0, str(bf.FMU_SRC))
-        try:
-            fmu = FmuBuilder.build_FMU(bf.FMU_SRC / "fonbw_pid_fmu.py", dest=out_dir,
-                                       project_files=[bf.COMMON, _PKG, res], **bf.FMU_OPTIONS)
-        finally:
-            sys.path.remove(str(bf.FMU_SRC))
-    problems = validate_fmu(str(fmu))
-    if problems:
-        raise CosimError(f"{fmu} fails validation:\n  " + "\n  ".join(problems))
-    return Path(fmu)
-
-
-def _sources_key() -> str:
-    h = hashlib.sha1()
-    for d in (_PKG, _ROOT / "fmu_src"):
-        for p in sorted(d.rglob("*.py")):
-            h.update(p.name.encode())
-            h.update(p.read_bytes())
-    bf = _ROOT / "build_fmu.py"
-    if bf.is_file():
-        h.update(bf.read_bytes())
-    return h.hexdigest()[:12]
-
-
-def _plant_resource(sys_, hysteresis=True) -> dict:
-    bf = _load_build_fmu()
-    unit = "um" if hysteresis else "V"
-    return bf.statespace_resource(
-        sys_, input=("h", unit, "Plant input (quasi-static displacement, or voltage without "
-                                "hysteresis block)"),
-        output=("x", "um", "Displacement after the linear dynamics"), dt=DT)
-
-
-def _run_py(args, cwd=None):
-    env = dict(os.environ)
-    r = subprocess.run([sys.executable, *map(str, args)], capture_output=True, text=True,
-                       env=env, cwd=cwd)
-    if r.returncode != 0:
-        raise CosimError(f"FMU build failed ({' '.join(map(str, args[:3]))}):\n"
-                         f"{r.stdout[-2000:]}\n{r.stderr[-2000:]}")
-
-
 def build_fmus(out_dir=None, plant=None, hysteresis=True) -> dict:
     """Build (or reuse) the FMUs of the loop; returns {role: path}.
 
-    Roles: ``hyst`` (FonbwHysteresis), ``comp`` (FonbwCompensator),
-    ``ctrl`` (FonbwPID), ``plant`` (FonbwLinearPlant of `plant`, if any).
-    Model and controller parameters are FMU parameters, set by the masters at
-    initialization, so one build serves every parameter set; the plant's
-    matrices ride in the FMU's resources, one build per plant. Builds run in
-    subprocesses (the builder imports the slave scripts); the default
-    directory is a per-user cache keyed by the sources.
+    Roles: ``hyst``, ``comp``, ``ctrl`` and ``plant`` (the FonbwLinearPlant of
+    :func:`plant_system` of `plant`, if any); see :func:`fonbw.fmu.build.loop_fmus`.
     """
-    if out_dir is None:
-        out_dir = Path(tempfile.gettempdir()) / f"fonbw-cosim-{getpass.getuser()}" / _sources_key()
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    paths = {"hyst": out_dir / "FonbwHysteresis.fmu", "comp": out_dir / "FonbwCompensator.fmu",
-             "ctrl": out_dir / "FonbwPID.fmu"}
-    bf_path = _ROOT / "build_fmu.py"
-    missing = [k for k in ("hyst", "comp") if not paths[k].is_file()]
-    if missing:
-        with tempfile.TemporaryDirectory(dir=out_dir) as tmp:
-            only = sum((["--only", {"hyst": "hysteresis", "comp": "compensator"}[k]] for k in missing), [])
-            _run_py([bf_path, *only, "-o", tmp])
-            for k in missing:
-                os.replace(Path(tmp) / paths[k].name, paths[k])
-    if not paths["ctrl"].is_file():
-        with tempfile.TemporaryDirectory(dir=out_dir) as tmp:
-            _run_py(["-c", "import sys; from fonbw.cosim import build_pid_fmu; "
-                           "build_pid_fmu(sys.argv[1])", tmp])
-            os.replace(Path(tmp) / "FonbwPID.fmu", paths["ctrl"])
-    sys_ = plant_system(plant) if plant is not None else None
-    if sys_ is not None:
-        res = _plant_resource(sys_, hysteresis)
-        key = hashlib.sha1(json.dumps(res, sort_keys=True).encode()).hexdigest()[:12]
-        pdir = out_dir / f"plant-{key}"
-        paths["plant"] = pdir / "FonbwLinearPlant.fmu"
-        if not paths["plant"].is_file():
-            pdir.mkdir(exist_ok=True)
-            with tempfile.TemporaryDirectory(dir=out_dir) as tmp:
-                pj = Path(tmp) / "plant.json"
-                pj.write_text(json.dumps(res), encoding="utf-8")
-                _run_py([bf_path, "--only", "plant", "--plant", pj, "-o", tmp])
-                os.replace(Path(tmp) / "FonbwLinearPlant.fmu", paths["plant"])
-    return paths
+    from .fmu.build import loop_fmus
+
+    spec = controller_spec(1e-3, 100.0)
+    return loop_fmus({k: spec[k] for k in LoopController._KEYS}, out_dir,
+                     plant_system(plant) if plant is not None else None, hysteresis)
 
 
 def _fmu_parameters(role, cfg) -> dict:
@@ -940,7 +828,7 @@ def run_cosim(scenario="sine5", mode="ff+fb", master="reference", T=None, dt=DT,
     cfg = {"model": model, "truth": truth, "controller": ctrl, "dt": dt}
     if sys_ is not None:
         # the matrices exactly as the plant FMU reads them (through its JSON resource)
-        res = json.loads(json.dumps(_plant_resource(sys_, hysteresis)))
+        res = json.loads(json.dumps(loop_plant_resource(sys_, hysteresis)))
         cfg["plant_mats"] = [np.array(res[x], dtype=float).reshape(res["shape"][x]) for x in "ABCD"]
     if master != "reference":
         cfg["fmus"] = build_fmus(fmu_dir, sys_, hysteresis)

@@ -3,7 +3,7 @@
 1. the bench's experiments (eq. 19, sines, multi-tone, step-and-hold) as CSV;
 2. FONBW, CBW and Zhu identified on the eq.-19 record (Tables 1–3, Figs. 8–10);
 3. the three feedforward compensators on the paper's two trajectories (Table 4);
-4. the FMUs built (``build_fmu.py``) with the identified FONBW parameters;
+4. the FMUs built (:mod:`fonbw.fmu.build`) with the identified FONBW parameters;
 5. the closed loop run by the fmpy master: feedforward, feedback, both;
 6. the sim-to-real gap between the identified model and the bench diagnosed
    (the bench has creep and mechanics the model lacks);
@@ -90,13 +90,13 @@ def _stage_fmus(model, out):
     os.makedirs(d, exist_ok=True)
     params = os.path.join(d, "fonbw_identified.json")
     model.save(params)
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    script = os.path.join(root, "build_fmu.py")
-    if not os.path.exists(script):
-        raise FileNotFoundError(f"{script}: build_fmu.py not found (run the demo from a clone of the repository)")
-    r = subprocess.run([sys.executable, script, "--params", params, "-o", d], capture_output=True, text=True)
+    # a fresh process: the builder imports the slave scripts, which must not
+    # meet the FMUs this process loads in the closed-loop stage
+    r = subprocess.run([sys.executable, "-m", "fonbw.fmu.build", "--params", params, "-o", d],
+                       capture_output=True, text=True)
     if r.returncode != 0:
-        raise RuntimeError(f"build_fmu.py failed: {r.stderr.strip().splitlines()[-1] if r.stderr.strip() else r.returncode}")
+        raise RuntimeError(f"building the FMUs failed: "
+                           f"{r.stderr.strip().splitlines()[-1] if r.stderr.strip() else r.returncode}")
     return sorted(os.path.join(d, f) for f in os.listdir(d) if f.endswith(".fmu"))
 
 
@@ -231,7 +231,7 @@ def _write_report(out_dir, bench, res, st, b, seed, quick):
                             md_table(keys, _fmt_rows(rows, keys)),
                             [(p, "Tracking and error: " + os.path.basename(p)) for p in figs]))
     if res["fmus"]:
-        secs.append(Section("FMUs", "FMI 2.0 co-simulation FMUs built by build_fmu.py with the identified FONBW "
+        secs.append(Section("FMUs", "FMI 2.0 co-simulation FMUs built by fonbw build-fmu with the identified FONBW "
                             "parameters (validated by fmpy during the build).",
                             "\n".join(f"- `{os.path.relpath(p, out_dir)}` ({os.path.getsize(p) / 1e3:.0f} kB)"
                                       for p in res["fmus"])))
