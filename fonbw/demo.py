@@ -24,7 +24,7 @@ import numpy as np
 
 from .report import Section, md_table, write_html, write_markdown
 
-__all__ = ["run_demo", "demo_command", "reproduce_command"]
+__all__ = ["run_demo"]
 
 
 class _Stages:
@@ -270,22 +270,3 @@ def _write_report(out_dir, bench, res, st, b, seed, quick):
              "identification, validation, compensation, FMUs, closed loop and gap diagnosis.")
     write_markdown(os.path.join(out_dir, "report.md"), title, secs, intro)
     write_html(os.path.join(out_dir, "report.html"), title, secs, intro)
-
-
-def demo_command(ns):
-    res = run_demo(ns.output, seed=ns.seed, quick=ns.quick)
-    print(f"wrote {os.path.join(ns.output, 'report.html')} and report.md in {res['wall_s']:.0f} s")
-    for k, v in res["errors"].items():
-        print(f"stage {k} failed: {v}", file=sys.stderr)
-    if res["errors"]:
-        from .cli import CLIError
-
-        raise CLIError(f"{len(res['errors'])} stage(s) failed ({', '.join(res['errors'])}); see the report")
-
-
-def reproduce_command(ns):
-    from .reproduce import reproduce
-
-    res = reproduce(ns.output, seed=ns.seed, quick=ns.quick, progress=True)
-    print(open(os.path.join(ns.output, "tables.md"), encoding="utf-8").read())
-    print(f"wrote {ns.output}/tables.md, tables.json and figures in {res['wall_s']:.0f} s")
