@@ -34,7 +34,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-__all__ = ["DEResult", "jde_minimize"]
+__all__ = ["DEResult", "JDESolver", "jde_minimize"]
 
 # jDE constants (Brest et al. 2006, Sec. III).
 _TAU1 = 0.1     # probability of regenerating F_i
@@ -220,7 +220,15 @@ def jde_minimize(func_pop: Callable[[np.ndarray], np.ndarray],
     -------
     DEResult
     """
-    space = _Space(bounds, log_scale)
+    return JDESolver(func_pop, bounds, log_scale=log_scale, popsize=popsize,
+                     max_evals=max_evals, seed=seed, tol_stagnation=tol_stagnation,
+                     patience=patience, polish=polish, polish_maxfev=polish_maxfev,
+                     progress=progress, callback=callback, x0=x0).solve()
+
+
+def _check_options(space, popsize, max_evals, tol_stagnation, patience, polish,
+                   polish_maxfev, x0):
+    """Validated (P, max_evals, polish_method, polish_budget, x0) of a run."""
     d = space.d
     if int(max_evals) != max_evals or max_evals < 1:
         raise ValueError(f"max_evals must be a positive integer, got {max_evals!r}")
@@ -262,117 +270,211 @@ def jde_minimize(func_pop: Callable[[np.ndarray], np.ndarray],
         x0 = np.asarray(x0, dtype=float).reshape(-1)
         if x0.shape[0] != d or not np.all(np.isfinite(x0)):
             raise ValueError(f"x0 must hold {d} finite values, got {x0!r}")
-    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    return P, max_evals, polish_method, polish_budget, x0
 
-    pbar = None
-    if progress:
-        from tqdm.auto import tqdm
-        pbar = tqdm(total=max_evals, unit="eval", desc="jDE")
 
-    nfev = 0
+class JDESolver:
+    """One jDE run: the state of the population and the steps of the algorithm.
 
-    def evaluate(Z):
-        nonlocal nfev
-        X = space.to_natural(Z)
-        f = np.asarray(func_pop(X), dtype=float).reshape(-1)
+    :func:`jde_minimize` is the front door; it builds a solver and calls
+    :meth:`solve`. The steps, in the order :meth:`solve` calls them:
+    :meth:`init_population`, then per generation :meth:`evolve` (which calls
+    :meth:`adapt_controls`, :meth:`mutate`, :meth:`crossover`, the objective
+    and :meth:`select`) and :meth:`check_stop`, finally :meth:`polish_best`
+    and :meth:`result`. The random numbers are drawn in that order, which is
+    what makes a seed reproduce a run bit for bit.
+
+    Parameters
+    ----------
+    func_pop, bounds, log_scale, popsize, max_evals, seed, tol_stagnation, \
+patience, polish, polish_maxfev, progress, callback, x0
+        As in :func:`jde_minimize`.
+
+    Attributes
+    ----------
+    pop : ndarray, shape (P, d)
+        Individuals in unit-cube coordinates.
+    cost : ndarray, shape (P,)
+        Their objective values (+inf for divergent ones).
+    F, CR : ndarray, shape (P,)
+        Each individual's scale factor and crossover rate.
+    nfev, nit : int
+        Evaluations and generations so far.
+    history : list of float
+        Best cost after the initial population and after every generation.
+    message : str or None
+        Why the run stopped (None while it runs).
+    success : bool
+        Whether it stopped on its convergence criterion.
+    """
+
+    def __init__(self, func_pop, bounds, *, log_scale=None, popsize=None, max_evals=20000,
+                 seed=None, tol_stagnation=1e-6, patience=50, polish=True,
+                 polish_maxfev=None, progress=False, callback=None, x0=None):
+        self.space = _Space(bounds, log_scale)
+        (self.P, self.max_evals, self.polish_method, self.polish_budget,
+         self.x0) = _check_options(self.space, popsize, max_evals, tol_stagnation,
+                                   patience, polish, polish_maxfev, x0)
+        self.de_budget = self.max_evals - self.polish_budget
+        self.func_pop = func_pop
+        self.tol_stagnation = tol_stagnation
+        self.patience = patience
+        self.callback = callback
+        self.rng = (seed if isinstance(seed, np.random.Generator)
+                    else np.random.default_rng(seed))
+        self.progress = progress
+        self._pbar = None
+        self.nfev = 0
+        self.nit = 0
+        self.history = []
+        self.message = None
+        self.success = False
+        self.pop = self.cost = self.F = self.CR = None
+
+    def evaluate(self, Z):
+        """Costs of unit-cube points Z (m, d); non-finite costs become +inf."""
+        X = self.space.to_natural(Z)
+        f = np.asarray(self.func_pop(X), dtype=float).reshape(-1)
         if f.shape[0] != X.shape[0]:
             raise ValueError(
                 f"func_pop returned {f.shape[0]} costs for {X.shape[0]} candidates")
-        nfev += X.shape[0]
-        if pbar is not None:
-            pbar.update(X.shape[0])
+        self.nfev += X.shape[0]
+        if self._pbar is not None:
+            self._pbar.update(X.shape[0])
         # Divergent candidates (NaN/inf) must lose every comparison.
         return np.where(np.isfinite(f), f, np.inf)
 
-    pop = _latin_hypercube(rng, P, d)
-    if x0 is not None:
-        pop[0] = space.to_unit(x0)
-    Fs = np.full(P, 0.5)      # jDE initial F and CR (Brest et al. 2006)
-    CRs = np.full(P, 0.9)
-    cost = np.full(P, np.inf)
-    history = []
-    nit = 0
-    message = None
-    success = False
-    try:
-        cost = evaluate(pop)
-        history.append(cost.min())
-        while message is None:
-            remaining = de_budget - nfev
-            if remaining <= 0:
-                message = "maximum number of evaluations reached"
-                break
-            # The last generation may be partial so the budget is used exactly.
-            m = min(P, remaining)
-            # jDE self-adaptation of F and CR (before mutation).
-            F_new = np.where(rng.random(P) < _TAU1, _F_LOW + rng.random(P) * _F_UP, Fs)
-            CR_new = np.where(rng.random(P) < _TAU2, rng.random(P), CRs)
-            r1, r2, r3 = _three_distinct_others(rng, P)
-            base = pop[r1]
-            mutant = base + F_new[:, None] * (pop[r2] - pop[r3])
-            # Bounce back between the base vector and the violated bound: keeps
-            # diversity near the boundary better than clipping.
-            low = mutant < 0.0
-            high = mutant > 1.0
-            u = rng.random((P, d))
-            mutant = np.where(low, u * base, mutant)
-            mutant = np.where(high, base + u * (1.0 - base), mutant)
-            cross = rng.random((P, d)) < CR_new[:, None]
-            cross[np.arange(P), rng.integers(0, d, P)] = True   # j_rand
-            trial = np.where(cross, mutant, pop)
+    def init_population(self):
+        """Latin hypercube population (with ``x0`` as its first member); not evaluated."""
+        P, d = self.P, self.space.d
+        self.pop = _latin_hypercube(self.rng, P, d)
+        if self.x0 is not None:
+            self.pop[0] = self.space.to_unit(self.x0)
+        self.F = np.full(P, 0.5)      # jDE initial F and CR (Brest et al. 2006)
+        self.CR = np.full(P, 0.9)
+        self.cost = np.full(P, np.inf)
 
-            idx = np.arange(m)
-            f_trial = evaluate(trial[idx])
-            better = f_trial <= cost[idx]
-            win = idx[better]
-            pop[win] = trial[win]
-            cost[win] = f_trial[better]
-            Fs[win] = F_new[win]
-            CRs[win] = CR_new[win]
-            nit += 1
-            best = cost.min()
-            history.append(best)
+    def adapt_controls(self):
+        """jDE self-adaptation: candidate (F, CR) of each individual for this generation."""
+        P, rng = self.P, self.rng
+        F_new = np.where(rng.random(P) < _TAU1, _F_LOW + rng.random(P) * _F_UP, self.F)
+        CR_new = np.where(rng.random(P) < _TAU2, rng.random(P), self.CR)
+        return F_new, CR_new
 
-            if callback is not None:
-                ib = int(np.argmin(cost))
-                if callback(space.to_natural(pop[ib]), float(cost[ib]), nit):
-                    message = "stopped by callback"
-                    break
-            if nit >= patience and np.isfinite(best):
-                old = history[-1 - patience]
-                if old - best <= tol_stagnation * abs(old):
-                    message = (f"stagnation: relative improvement <= {tol_stagnation:g}"
-                               f" over {patience} generations")
-                    success = True
-                    break
-            if np.isfinite(best) and np.ptp(pop, axis=0).max() < 1e-12:
-                message = "converged: population collapsed"
-                success = True
-                break
-    except KeyboardInterrupt:
-        message = "interrupted"
-        success = False
+    def mutate(self, F_new):
+        """DE/rand/1 mutants, bounced back into the unit cube."""
+        pop, rng = self.pop, self.rng
+        r1, r2, r3 = _three_distinct_others(rng, self.P)
+        base = pop[r1]
+        mutant = base + F_new[:, None] * (pop[r2] - pop[r3])
+        # Bounce back between the base vector and the violated bound: keeps
+        # diversity near the boundary better than clipping.
+        low = mutant < 0.0
+        high = mutant > 1.0
+        u = rng.random((self.P, self.space.d))
+        mutant = np.where(low, u * base, mutant)
+        return np.where(high, base + u * (1.0 - base), mutant)
 
-    ib = int(np.argmin(cost))
-    z_best = pop[ib].copy()
-    f_best = float(cost[ib])
+    def crossover(self, mutant, CR_new):
+        """Binomial crossover of the mutants with the population (one forced gene each)."""
+        P, d, rng = self.P, self.space.d, self.rng
+        cross = rng.random((P, d)) < CR_new[:, None]
+        cross[np.arange(P), rng.integers(0, d, P)] = True   # j_rand
+        return np.where(cross, mutant, self.pop)
 
-    if (message != "interrupted" and polish_method is not None and polish_budget > 0
-            and np.isfinite(f_best)):
+    def select(self, trial, f_trial, F_new, CR_new):
+        """One-to-one selection: the first ``len(f_trial)`` trials replace their parents
+        when not worse, and bring their (F, CR) with them."""
+        idx = np.arange(f_trial.shape[0])
+        better = f_trial <= self.cost[idx]
+        win = idx[better]
+        self.pop[win] = trial[win]
+        self.cost[win] = f_trial[better]
+        self.F[win] = F_new[win]
+        self.CR[win] = CR_new[win]
+
+    def evolve(self):
+        """One generation; False (and ``message`` set) when the budget is spent."""
+        remaining = self.de_budget - self.nfev
+        if remaining <= 0:
+            self.message = "maximum number of evaluations reached"
+            return False
+        # The last generation may be partial so the budget is used exactly.
+        m = min(self.P, remaining)
+        F_new, CR_new = self.adapt_controls()
+        trial = self.crossover(self.mutate(F_new), CR_new)
+        f_trial = self.evaluate(trial[np.arange(m)])
+        self.select(trial, f_trial, F_new, CR_new)
+        self.nit += 1
+        self.history.append(self.cost.min())
+        return True
+
+    def check_stop(self):
+        """Callback, stagnation and collapse tests after a generation; True to stop."""
+        best = self.history[-1]
+        if self.callback is not None:
+            ib = int(np.argmin(self.cost))
+            if self.callback(self.space.to_natural(self.pop[ib]), float(self.cost[ib]),
+                             self.nit):
+                self.message = "stopped by callback"
+                return True
+        if self.nit >= self.patience and np.isfinite(best):
+            old = self.history[-1 - self.patience]
+            if old - best <= self.tol_stagnation * abs(old):
+                self.message = (f"stagnation: relative improvement <= "
+                                f"{self.tol_stagnation:g} over {self.patience} generations")
+                self.success = True
+                return True
+        if np.isfinite(best) and np.ptp(self.pop, axis=0).max() < 1e-12:
+            self.message = "converged: population collapsed"
+            self.success = True
+            return True
+        return False
+
+    def run_generations(self):
+        """Evaluate the initial population and evolve until a stop; Ctrl-C stops too."""
         try:
-            z_best, f_best = _polish(evaluate, z_best, f_best, polish_method,
-                                     polish_budget, lambda: nfev)
+            self.cost = self.evaluate(self.pop)
+            self.history.append(self.cost.min())
+            while self.message is None:
+                if not self.evolve() or self.check_stop():
+                    break
         except KeyboardInterrupt:
-            message = "interrupted"
-            success = False
-    if pbar is not None:
-        pbar.close()
-    if not np.isfinite(f_best):
-        success = False
-        message = (message or "") + "; no finite cost found"
-    return DEResult(x=space.to_natural(z_best), fun=f_best, nfev=nfev, nit=nit,
-                    success=success, message=message,
-                    history=np.asarray(history, dtype=float))
+            self.message = "interrupted"
+            self.success = False
+
+    def polish_best(self):
+        """Best (z, f) of the population, locally refined unless polish is off or
+        the run was interrupted."""
+        ib = int(np.argmin(self.cost))
+        z_best = self.pop[ib].copy()
+        f_best = float(self.cost[ib])
+        if (self.message != "interrupted" and self.polish_method is not None
+                and self.polish_budget > 0 and np.isfinite(f_best)):
+            try:
+                z_best, f_best = _polish(self.evaluate, z_best, f_best, self.polish_method,
+                                         self.polish_budget, lambda: self.nfev)
+            except KeyboardInterrupt:
+                self.message = "interrupted"
+                self.success = False
+        return z_best, f_best
+
+    def solve(self) -> DEResult:
+        """Run jDE to the end and return the result."""
+        if self.progress:
+            from tqdm.auto import tqdm
+            self._pbar = tqdm(total=self.max_evals, unit="eval", desc="jDE")
+        self.init_population()
+        self.run_generations()
+        z_best, f_best = self.polish_best()
+        if self._pbar is not None:
+            self._pbar.close()
+        if not np.isfinite(f_best):
+            self.success = False
+            self.message = (self.message or "") + "; no finite cost found"
+        return DEResult(x=self.space.to_natural(z_best), fun=f_best, nfev=self.nfev,
+                        nit=self.nit, success=self.success, message=self.message,
+                        history=np.asarray(self.history, dtype=float))
 
 
 def _polish(evaluate, z0, f0, method, budget, get_nfev):
