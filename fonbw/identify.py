@@ -225,101 +225,119 @@ def search_space(kind: str, records, *, N: int = 3, bounds: Mapping | None = Non
         raise ValueError(f"N must be a positive integer, got {N!r}")
     recs = _as_records(records)
     U = max(float(np.max(np.abs(u))) for u, _, _ in recs)
-
     if kind in ("fonbw", "nbw", "cbw"):
-        Np = int(N) if kind != "cbw" else 1
-        names = ["rho", "sigma_rho" if reparametrize else "sigma", "n"]
-        bnds = [(1e-7 / U, 1e4 / U),
-                (1e-3 / U, 1e4 / U) if reparametrize else (1e-2, 1e8),
-                (1.0, 4.0)]
-        logs = [True, True, False]
-        if kind == "fonbw":
-            names += ["lam1", "lam2"]
-            bnds += [(0.05, 1.0), (0.05, 1.0)]
-            logs += [False, False]
+        space = _bw_space(kind, U, int(N) if kind != "cbw" else 1, reparametrize)
+    else:
+        space = _zhu_space(U)
+    if bounds is not None:
+        _override_bounds(space, bounds)
+    return space
 
-        def rho_sigma_n(X):
-            rho, n = X[:, 0], X[:, 2]
-            sigma = (X[:, 1] / rho) ** n if reparametrize else X[:, 1]
-            return rho, sigma, n
 
-        def fixed_columns(u):
-            # Scaled powers keep the least-squares problem well conditioned.
-            return np.column_stack([(u / U) ** (i + 1) for i in range(Np)])
+def _bw_space(kind, U, Np, reparametrize):
+    """FONBW, NBW or CBW search space (module docstring) for max|u| = U [V]."""
+    names = ["rho", "sigma_rho" if reparametrize else "sigma", "n"]
+    bnds = [(1e-7 / U, 1e4 / U),
+            (1e-3 / U, 1e4 / U) if reparametrize else (1e-2, 1e8),
+            (1.0, 4.0)]
+    logs = [True, True, False]
+    if kind == "fonbw":
+        names += ["lam1", "lam2"]
+        bnds += [(0.05, 1.0), (0.05, 1.0)]
+        logs += [False, False]
 
-        if kind == "cbw":
-            def basis_params(X):
-                rho, sigma, n = rho_sigma_n(X)
-                # ka = 0 and kb D = 1 make the output h itself (h0 = 1).
-                return {"ka": np.zeros_like(rho), "kb": rho, "D": 1.0 / rho,
-                        "A": np.ones_like(rho), "beta": sigma, "gamma": 1.0 - sigma,
-                        "n": n}
+    def rho_sigma_n(X):
+        rho, n = X[:, 0], X[:, 2]
+        sigma = (X[:, 1] / rho) ** n if reparametrize else X[:, 1]
+        return rho, sigma, n
 
-            def final_params(x, c, G):
-                rho, sigma, n = (float(v[0]) for v in rho_sigma_n(x[None, :]))
-                return {"ka": float(c[0]) / U, "kb": G * rho, "D": 1.0 / rho, "A": 1.0,
-                        "beta": sigma, "gamma": 1.0 - sigma, "n": n}
-        else:
-            def basis_params(X):
-                rho, sigma, n = rho_sigma_n(X)
-                p = {f"ku{i + 1}": np.zeros_like(rho) for i in range(Np)}
-                p.update(kh=np.ones_like(rho), rho=rho, sigma=sigma, n=n)
-                if kind == "fonbw":
-                    p.update(lam1=X[:, 3], lam2=X[:, 4])
-                return p
+    def fixed_columns(u):
+        # Scaled powers keep the least-squares problem well conditioned.
+        return np.column_stack([(u / U) ** (i + 1) for i in range(Np)])
 
-            def final_params(x, c, G):
-                p = {k: float(v[0]) for k, v in basis_params(x[None, :]).items()}
-                for i in range(Np):
-                    p[f"ku{i + 1}"] = float(c[i]) / U ** (i + 1)
-                p["kh"] = G
-                return p
-    else:  # Zhu et al., eq. (20); k0 = 1, A = 1 in the basis simulation
-        names = ["wn", "zeta", "k1_rel", "tau", "beta_hat", "gamma_rel", "delta_rel",
-                 "n"]
-        bnds = [(2 * np.pi, 2 * np.pi * 5e3), (0.05, 20.0), (-2.0, 2.0), (1e-6, 1.0),
-                (1e-3, 1e3), (-1.0, 1.0), (-20.0, 20.0), (1.0, 4.0)]
-        logs = [True, True, False, True, True, False, False, False]
-
+    if kind == "cbw":
         def basis_params(X):
-            wn, zeta, k1r, tau, bh, gr, dr, n = X.T
-            one = np.ones_like(wn)
-            beta = bh / U ** n
-            return {"m0": 1.0 / wn ** 2, "c0": 2.0 * zeta / wn, "k0": one,
-                    "k1": k1r * tau, "x0": np.zeros_like(wn), "tau": tau, "A": one,
-                    "beta": beta, "gamma": gr * beta, "delta": dr, "n": n}
+            rho, sigma, n = rho_sigma_n(X)
+            # ka = 0 and kb D = 1 make the output h itself (h0 = 1).
+            return {"ka": np.zeros_like(rho), "kb": rho, "D": 1.0 / rho,
+                    "A": np.ones_like(rho), "beta": sigma, "gamma": 1.0 - sigma,
+                    "n": n}
 
-        def fixed_columns(u):
-            return np.ones((u.size, 1))
+        def final_params(x, c, G):
+            rho, sigma, n = (float(v[0]) for v in rho_sigma_n(x[None, :]))
+            return {"ka": float(c[0]) / U, "kb": G * rho, "D": 1.0 / rho, "A": 1.0,
+                    "beta": sigma, "gamma": 1.0 - sigma, "n": n}
+    else:
+        def basis_params(X):
+            rho, sigma, n = rho_sigma_n(X)
+            p = {f"ku{i + 1}": np.zeros_like(rho) for i in range(Np)}
+            p.update(kh=np.ones_like(rho), rho=rho, sigma=sigma, n=n)
+            if kind == "fonbw":
+                p.update(lam1=X[:, 3], lam2=X[:, 4])
+            return p
 
         def final_params(x, c, G):
             p = {k: float(v[0]) for k, v in basis_params(x[None, :]).items()}
-            n = p["n"]
-            # h = G w rescales the BW state: see the module docstring.
-            p.update(x0=float(c[0]), A=G, k1=G * p["k1"], delta=G * p["delta"],
-                     beta=p["beta"] / abs(G) ** (n - 1.0),
-                     gamma=p["gamma"] * G / abs(G) ** n)
+            for i in range(Np):
+                p[f"ku{i + 1}"] = float(c[i]) / U ** (i + 1)
+            p["kh"] = G
             return p
-
-    if bounds is not None:
-        for key, b in dict(bounds).items():
-            if key not in names:
-                raise ValueError(f"bounds: unknown search variable {key!r} for kind "
-                                 f"{kind!r}; valid names are {names}")
-            try:
-                lo, hi = (float(v) for v in b)
-            except (TypeError, ValueError):
-                raise ValueError(f"bounds[{key!r}] = {b!r}: need a pair (lo, hi)") from None
-            j = names.index(key)
-            if not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
-                raise ValueError(f"bounds[{key!r}] = {b!r}: need finite lo <= hi")
-            if logs[j] and (lo <= 0.0 or hi <= 0.0):
-                raise ValueError(f"bounds[{key!r}] = {b!r}: {key} is searched on a log "
-                                 "scale and must be > 0")
-            bnds[j] = (lo, hi)
     return SearchSpace(kind=kind, names=names, bounds=bnds, log_scale=logs,
                        basis_params=basis_params, fixed_columns=fixed_columns,
                        final_params=final_params)
+
+
+def _zhu_space(U):
+    """Search space of Zhu et al., eq. (20), for max|u| = U [V]; k0 = 1, A = 1 in
+    the basis simulation."""
+    names = ["wn", "zeta", "k1_rel", "tau", "beta_hat", "gamma_rel", "delta_rel", "n"]
+    bnds = [(2 * np.pi, 2 * np.pi * 5e3), (0.05, 20.0), (-2.0, 2.0), (1e-6, 1.0),
+            (1e-3, 1e3), (-1.0, 1.0), (-20.0, 20.0), (1.0, 4.0)]
+    logs = [True, True, False, True, True, False, False, False]
+
+    def basis_params(X):
+        wn, zeta, k1r, tau, bh, gr, dr, n = X.T
+        one = np.ones_like(wn)
+        beta = bh / U ** n
+        return {"m0": 1.0 / wn ** 2, "c0": 2.0 * zeta / wn, "k0": one,
+                "k1": k1r * tau, "x0": np.zeros_like(wn), "tau": tau, "A": one,
+                "beta": beta, "gamma": gr * beta, "delta": dr, "n": n}
+
+    def fixed_columns(u):
+        return np.ones((u.size, 1))
+
+    def final_params(x, c, G):
+        p = {k: float(v[0]) for k, v in basis_params(x[None, :]).items()}
+        n = p["n"]
+        # h = G w rescales the BW state: see the module docstring.
+        p.update(x0=float(c[0]), A=G, k1=G * p["k1"], delta=G * p["delta"],
+                 beta=p["beta"] / abs(G) ** (n - 1.0),
+                 gamma=p["gamma"] * G / abs(G) ** n)
+        return p
+
+    return SearchSpace(kind="zhu", names=names, bounds=bnds, log_scale=logs,
+                       basis_params=basis_params, fixed_columns=fixed_columns,
+                       final_params=final_params)
+
+
+def _override_bounds(space, bounds):
+    """Replace default bounds of ``space`` by the user's ``{name: (lo, hi)}`` (checked)."""
+    names, logs, kind = space.names, space.log_scale, space.kind
+    for key, b in dict(bounds).items():
+        if key not in names:
+            raise ValueError(f"bounds: unknown search variable {key!r} for kind "
+                             f"{kind!r}; valid names are {names}")
+        try:
+            lo, hi = (float(v) for v in b)
+        except (TypeError, ValueError):
+            raise ValueError(f"bounds[{key!r}] = {b!r}: need a pair (lo, hi)") from None
+        j = names.index(key)
+        if not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
+            raise ValueError(f"bounds[{key!r}] = {b!r}: need finite lo <= hi")
+        if logs[j] and (lo <= 0.0 or hi <= 0.0):
+            raise ValueError(f"bounds[{key!r}] = {b!r}: {key} is searched on a log "
+                             "scale and must be > 0")
+        space.bounds[j] = (lo, hi)
 
 
 # --------------------------------------------------------------------------
@@ -480,22 +498,8 @@ def identify(records, kind: str = "fonbw", *, seed=None, max_evals: int = 5000,
         raise ValueError(f"memory must be one of {tuple(ENGINES)}, got {memory!r}")
     Nsim = int(N) if kind in ("fonbw", "nbw") else 1
     pnames = list(hyst.param_names(kind, Nsim))
-    if int(max_evals) != max_evals or max_evals < 1:
-        raise ValueError(f"max_evals must be a positive integer, got {max_evals!r}")
-    if polish_maxfev is None and polish:
-        # 30 %: measured on the eq.-(19) FONBW test problem (8 seeds), the
-        # L-BFGS-B polish closes the last decade of RMS far cheaper than DE.
-        polish_maxfev = (3 * int(max_evals)) // 10
-    if workers is not None and (isinstance(workers, bool) or int(workers) != workers
-                                or not 1 <= workers <= numba.config.NUMBA_NUM_THREADS):
-        raise ValueError(f"workers must be an integer in [1, "
-                         f"{numba.config.NUMBA_NUM_THREADS}], got {workers!r}")
-    if popsize is None:
-        # jDE's default population, shrunk for small budgets so that at least
-        # about five generations run (a tiny budget is a user's explicit choice).
-        d = len(space.names)
-        de_budget = int(max_evals) - (int(polish_maxfev) if polish else 0)
-        popsize = int(min(np.clip(10 * d, 20, 100), max(4, de_budget // 5)))
+    polish_maxfev, popsize = _de_settings(space, max_evals, polish, polish_maxfev, popsize,
+                                          workers, numba.config.NUMBA_NUM_THREADS)
     proj = _Projected(space, recs, pnames, kind, memory, Nsim)
 
     old_threads = numba.get_num_threads()
@@ -510,13 +514,43 @@ def identify(records, kind: str = "fonbw", *, seed=None, max_evals: int = 5000,
     finally:
         numba.set_num_threads(old_threads)
     wall = time.perf_counter() - t0
+    return _identify_result(proj, res, wall, records)
 
+
+def _de_settings(space, max_evals, polish, polish_maxfev, popsize, workers, max_threads):
+    """Checked budget options and identify's defaults of (polish_maxfev, popsize)."""
+    if int(max_evals) != max_evals or max_evals < 1:
+        raise ValueError(f"max_evals must be a positive integer, got {max_evals!r}")
+    if polish_maxfev is None and polish:
+        # 30 %: on the eq.-(19) FONBW test problem the L-BFGS-B polish closes
+        # the last decade of RMS far cheaper than DE.
+        polish_maxfev = (3 * int(max_evals)) // 10
+    if workers is not None and (isinstance(workers, bool) or int(workers) != workers
+                                or not 1 <= workers <= max_threads):
+        raise ValueError(f"workers must be an integer in [1, "
+                         f"{max_threads}], got {workers!r}")
+    if popsize is None:
+        # jDE's default population, shrunk for small budgets so that at least
+        # about five generations run (a tiny budget is a user's explicit choice).
+        d = len(space.names)
+        de_budget = int(max_evals) - (int(polish_maxfev) if polish else 0)
+        popsize = int(min(np.clip(10 * d, 20, 100), max(4, de_budget // 5)))
+    return polish_maxfev, popsize
+
+
+def _identify_result(proj, res, wall, records):
+    """The :class:`IdentifyResult` of the best search vector ``res.x`` (a
+    :class:`fonbw.de.DEResult`): linear parameters solved once more, the model
+    built and eq. (18) recomputed by simulating it."""
+    from fonbw import hysteresis as hyst
+
+    kind, space, memory, Nsim = proj.kind, proj.space, proj.memory, proj.N
     if not np.isfinite(res.fun):
         raise RuntimeError(f"identify({kind!r}): every candidate diverged "
                            f"({res.nfev} evaluations); check the data and bounds")
     _, G, c = proj.solve(res.x[None, :])
     params = space.final_params(res.x, c[0], float(G[0]))
-    theta = np.array([params[k] for k in pnames], dtype=float)
+    theta = np.array([params[k] for k in proj.pnames], dtype=float)
     model = hyst.model_from_vector(kind, theta, N=Nsim, memory=memory)
     rms = float(rms_cost(kind, theta[None, :], records, memory=memory, N=Nsim)[0])
     return IdentifyResult(model=model, kind=kind, params=params, rms=rms,
