@@ -1,6 +1,7 @@
-"""Blind test of the gap diagnosis (issue 7) on the separate truth simulator.
+"""Blind test of the gap diagnosis on the separate truth simulator.
 
-Scenarios are drawn at random with a seed (:func:`fonbw.gap.truth.draw_scenario`):
+Scenarios are drawn at random with a seed (:func:`gap_truth.draw_scenario`, in
+this folder):
 no effect (null), one effect, two effects, an effect outside the library
 (50/150 Hz mains hum) and one effect below the noise floor, with magnitudes
 (RMS change on the validation records) from 0.1 to 100 noise standard
@@ -67,7 +68,7 @@ def unabsorbed(sc, evals=1500):
 
 def run(n, seed0, out, budget, only=None):
     from fonbw.gap import diagnose
-    from fonbw.gap.truth import draw_scenario, scenario_kind
+    from gap_truth import draw_scenario, scenario_kind
 
     done = set()
     if os.path.exists(out):
@@ -168,20 +169,32 @@ def summary(path):
     w = np.array([r["wall_s"] for r in ok])
     lines.append(f"wall time per diagnosis: median {np.median(w):.0f} s, max {w.max():.0f} s")
 
+    lines += _confusion(singles)
+    lines += _per_scenario(rows)
+    return "\n".join(lines)
+
+
+def _confusion(singles):
+    """Markdown confusion table of the material single effects (rows injected,
+    columns the effect named first)."""
     names = ["creep", "dynamics", "amplifier", "delay", "drift", "saturation"]
     cols = names + ["none"]
     conf = {a: Counter() for a in names}
     for r in singles:
         conf[list(r["injected"])[0]][r["named"][0] if r["named"] else "none"] += 1
-    lines.append("")
-    lines.append("confusion (material single effects; rows injected, columns named first):")
+    lines = ["", "confusion (material single effects; rows injected, columns named first):"]
     lines.append("")
     lines.append("| injected \\ named | " + " | ".join(cols) + " |")
     lines.append("|---" * (len(cols) + 1) + "|")
     for a in names:
         lines.append(f"| {a} | " + " | ".join(str(conf[a][c]) for c in cols) + " |")
     lines.append("")
-    lines.append("per scenario:")
+    return lines
+
+
+def _per_scenario(rows):
+    """One line per scenario: injected, named, gap closed, wall time."""
+    lines = ["per scenario:"]
     for r in rows:
         inj = ", ".join(f"{k} {v['magnitude']:.2g}σ" for k, v in r["injected"].items()) or "-"
         if "error" in r:
@@ -191,7 +204,7 @@ def summary(path):
             lines.append(f"  seed {r['seed']} {r['kind']}: {inj}{una} -> {r['named'] or '-'}"
                          f" gap_closed {r['gap_closed']:.2f}{' unexplained' if r['unexplained'] else ''}"
                          f"{' at-floor' if r['at_floor'] else ''} ({r['wall_s']:.0f} s)")
-    return "\n".join(lines)
+    return lines
 
 
 def main(argv=None):
@@ -208,7 +221,7 @@ def main(argv=None):
     ns = ap.parse_args(argv)
     if ns.timing:
         from fonbw.gap import diagnose
-        from fonbw.gap.truth import draw_scenario
+        from gap_truth import draw_scenario
 
         sc = draw_scenario(ns.seed0, "single", scale=1.5)
         n = sum(len(r.u) for r in sc["train"] + sc["validate"])

@@ -1,11 +1,13 @@
 """Truth simulator for the blind test of the gap diagnosis.
 
-Written apart from :mod:`fonbw.gap.effects` on purpose: every effect here has
-other equations or another discretization than the candidate block the
-diagnosis may use to explain it, so the blind test is not rigged.
+Used by ``benchmarks/blind_gap.py`` and ``tests/test_gap.py``; it uses the
+library's public API only. Written apart from :mod:`fonbw.gap.effects` on
+purpose: every effect here has other equations or another discretization
+than the candidate block the diagnosis may use to explain it, so the blind
+test is not rigged.
 
 =============  =========================================  ===========================================
-effect         truth (here)                               candidate block (effects.py)
+effect         truth (here)                               candidate block (fonbw.gap.effects)
 =============  =========================================  ===========================================
 creep          logarithmic creep, γ per decade: 12 modes   4 fixed modes 0.01…10 s, implicit Euler,
                τ = 1 ms … 100 s, Tustin, on the output     gains solved
@@ -24,7 +26,7 @@ saturation     smooth stroke limit (tanh knee) on the      slope change c over a
 hum            50 Hz + 150 Hz mains pickup, random phase   none: outside the library
 =============  =========================================  ===========================================
 
-The hysteresis is the library's FONBW (``models/fonbw_default.json``
+The hysteresis is the library's FONBW (:data:`fonbw.data.DEFAULT_MODEL`
 perturbed a few per cent per scenario). Sensor noise is white Gaussian with a
 16-bit ADC over ±40 µm. Magnitudes are set by bisection on each effect's
 strength so that the RMS change it makes on the validation records equals a
@@ -33,16 +35,16 @@ target multiple of the noise standard deviation.
 from __future__ import annotations
 
 import math
-import os
 
 import numba as nb
 import numpy as np
 from scipy import signal
 from scipy.interpolate import PchipInterpolator
 
-from .. import signals as _sig
-from ..hysteresis import FONBW, load_model
-from ..io import Record
+from fonbw import FONBW, load_model
+from fonbw import signals as _sig
+from fonbw.data import DEFAULT_MODEL
+from fonbw.io import Record
 
 __all__ = ["TRUTH_EFFECTS", "KINDS", "Truth", "default_experiments", "draw_scenario", "scenario_kind", "magnitude"]
 
@@ -50,7 +52,6 @@ TRUTH_EFFECTS = ("creep", "dynamics", "amplifier", "delay", "drift", "saturation
 FS = 5000.0
 KINDS = ("null", "single", "pair", "outside", "below")
 KIND_P = (0.15, 0.45, 0.2, 0.1, 0.1)  # probabilities of KINDS
-_DEFAULT = os.path.join(os.path.dirname(__file__), "..", "..", "models", "fonbw_default.json")
 
 
 def default_experiments(fs=FS, scale=1.0):
@@ -293,7 +294,7 @@ def draw_scenario(seed, kind=None, scale=1.0, fs=FS):
     rng = np.random.default_rng([seed, 2026])
     if kind is None:
         kind = rng.choice(KINDS, p=KIND_P)
-    base = load_model(_DEFAULT)
+    base = load_model(DEFAULT_MODEL)
     pr = base.params
     ku = np.asarray(pr["ku"]) * (1 + 0.03 * rng.standard_normal(3))
     hyst = FONBW(ku, pr["kh"] * (1 + 0.03 * rng.standard_normal()), pr["rho"], pr["sigma"],
