@@ -141,46 +141,61 @@ def localize(records, predictions, dt, sigma2, n_time_bins=20, n_bins=8):
     R, RATE, AMP, BR, AGE = [], [], [], [], []
     for rec, yhat in zip(records, predictions):
         r = rec.y - yhat
-        mse = float(np.mean(r ** 2))
-        f, p = _psd(r, dt)
-        above = p > 4.0 * floor_psd
-        bands = []
-        k = 0
-        while k < len(f):
-            if above[k]:
-                j = k
-                while j + 1 < len(f) and above[j + 1]:
-                    j += 1
-                bands.append([float(f[k]), float(f[j]), float(np.max(p[k:j + 1]) / floor_psd)])
-                k = j + 1
-            else:
-                k += 1
-        # a few hundred points are plenty for the report
-        step = max(1, len(f) // 200)
-        nb_t = min(n_time_bins, max(1, len(r) // 50))
-        chunks = np.array_split(r, nb_t)
-        t_rms = [float(np.sqrt(np.mean(c ** 2))) for c in chunks]
-        rng = float(np.ptp(rec.y)) or 1.0
-        out.append({
-            "name": str(rec.path),
-            "n": int(len(r)),
-            "rms": float(np.sqrt(mse)),
-            "rms_pct_range": float(100.0 * np.sqrt(mse) / rng),
-            "excess_rms": float(np.sqrt(max(mse - sigma2, 0.0))),
-            "spectrum": {"f": f[::step].tolist(), "psd": p[::step].tolist(), "floor": floor_psd,
-                         "excess_bands": bands[:20]},
-            "time": {"t": [float((i + 0.5) * len(r) * dt / nb_t) for i in range(nb_t)], "rms": t_rms},
-        })
+        out.append(_record_summary(rec, r, dt, sigma2, floor_psd, n_time_bins))
         R.append(r)
         RATE.append(np.abs(np.gradient(rec.u, dt)))
         AMP.append(rec.u)
         BR.append(branch(rec.u))
         AGE.append(reversal_age(rec.u, dt))
-    r = np.concatenate(R)
-    rate = np.concatenate(RATE)
-    amp = np.concatenate(AMP)
-    br = np.concatenate(BR)
-    age = np.concatenate(AGE)
+    feats = _features(np.concatenate(R), np.concatenate(RATE), np.concatenate(AMP),
+                      np.concatenate(BR), np.concatenate(AGE), dt, n_bins)
+    dom = max(feats, key=lambda k: feats[k]["eta2"])
+    return {"records": out, "features": feats, "dominant": dom, "noise_floor": float(sigma2)}
+
+
+def _excess_bands(f, p, floor_psd):
+    """[lo, hi, peak/floor] of each run of frequency bins whose PSD is above 4× the floor."""
+    above = p > 4.0 * floor_psd
+    bands = []
+    k = 0
+    while k < len(f):
+        if above[k]:
+            j = k
+            while j + 1 < len(f) and above[j + 1]:
+                j += 1
+            bands.append([float(f[k]), float(f[j]), float(np.max(p[k:j + 1]) / floor_psd)])
+            k = j + 1
+        else:
+            k += 1
+    return bands
+
+
+def _record_summary(rec, r, dt, sigma2, floor_psd, n_time_bins):
+    """Gap, residual spectrum and RMS versus time of one record's residual `r` [µm]."""
+    mse = float(np.mean(r ** 2))
+    f, p = _psd(r, dt)
+    bands = _excess_bands(f, p, floor_psd)
+    # a few hundred points are plenty for the report
+    step = max(1, len(f) // 200)
+    nb_t = min(n_time_bins, max(1, len(r) // 50))
+    chunks = np.array_split(r, nb_t)
+    t_rms = [float(np.sqrt(np.mean(c ** 2))) for c in chunks]
+    rng = float(np.ptp(rec.y)) or 1.0
+    return {
+        "name": str(rec.path),
+        "n": int(len(r)),
+        "rms": float(np.sqrt(mse)),
+        "rms_pct_range": float(100.0 * np.sqrt(mse) / rng),
+        "excess_rms": float(np.sqrt(max(mse - sigma2, 0.0))),
+        "spectrum": {"f": f[::step].tolist(), "psd": p[::step].tolist(), "floor": floor_psd,
+                     "excess_bands": bands[:20]},
+        "time": {"t": [float((i + 0.5) * len(r) * dt / nb_t) for i in range(nb_t)], "rms": t_rms},
+    }
+
+
+def _features(r, rate, amp, br, age, dt, n_bins):
+    """Pooled binned residual and η² versus input rate [V/s], amplitude [V],
+    branch and time since reversal [s]."""
     qs = np.linspace(0, 1, n_bins + 1)
     feats = {}
     e = np.unique(np.quantile(rate, qs))
@@ -196,5 +211,4 @@ def localize(records, predictions, dt, sigma2, n_time_bins=20, n_bins=8):
     e[-1] = amax + 1e-12
     feats["time_since_reversal"] = _binned(age, r, e)
     feats["time_since_reversal"]["unit"] = "s"
-    dom = max(feats, key=lambda k: feats[k]["eta2"])
-    return {"records": out, "features": feats, "dominant": dom, "noise_floor": float(sigma2)}
+    return feats
