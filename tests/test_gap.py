@@ -9,10 +9,12 @@ import control as ct
 import numpy as np
 import pytest
 
+import gap_truth as tr
 from fonbw import plant
+from fonbw.gap import diagnose
 from fonbw.gap import effects as fx
-from fonbw.gap import truth as tr
-from fonbw.gap.attribute import coverage, decimate, diagnose
+from fonbw.gap.checks import coverage
+from fonbw.gap.fitter import Fitter, decimate
 from fonbw.gap.localize import branch, localize, noise_floor, reversal_age
 from fonbw.io import Record, write_csv
 
@@ -122,8 +124,6 @@ def test_output_saturation_fit_equals_scipy_least_squares():
     # scipy's trust-region least squares on the same nonlinear problem
     from scipy.optimize import least_squares
 
-    from fonbw.gap.attribute import Fitter
-
     rng = np.random.default_rng(3)
     t = np.linspace(0.0, 1.0, 4000)
     B = np.column_stack([np.sin(2 * np.pi * 3 * t), t, t * t, np.ones_like(t)])
@@ -147,8 +147,6 @@ def test_output_saturation_fit_equals_scipy_least_squares():
 
 
 def test_solve_leaves_an_unexcited_regressor_at_zero():
-    from fonbw.gap.attribute import Fitter
-
     rng = np.random.default_rng(4)
     A = np.column_stack([rng.standard_normal(500), np.ones(500), np.full(500, 1e-300)])
     y = A[:, 0] * 2.0 + 1.0
@@ -160,7 +158,6 @@ def test_solve_leaves_an_unexcited_regressor_at_zero():
 def test_linear_parameters_are_read_in_design_column_order():
     # drift's regressors are not filtered and go after creep's, and the output
     # nonlinearity goes last, whatever the order of the effects
-    from fonbw.gap.attribute import Fitter
     from fonbw.identify import search_space
 
     sc = tr.draw_scenario(5, "null", scale=0.25)
@@ -296,7 +293,7 @@ FAST = dict(budget=500, global_evals=160, refit_evals=45)
 @pytest.fixture(scope="module")
 def dynamics_case(tmp_path_factory):
     """A strong resonance, diagnosed through the CLI pieces (CSV in, JSON + HTML out)."""
-    from fonbw.gap import report
+    from fonbw.cli import diagnose as cli_diagnose
 
     sc = tr.draw_scenario(11, "null", scale=0.5)
     truth = sc["truth"]
@@ -310,14 +307,14 @@ def dynamics_case(tmp_path_factory):
             p = d / f"{name}.csv"
             write_csv(p, {"t": rec.t, "u": rec.u, "y": rec.y})
             args += [f"--{kind}", str(p)]
-    ns = report.add_diagnose_arguments(argparse.ArgumentParser()).parse_args(args)
+    ns = cli_diagnose.add_arguments(argparse.ArgumentParser()).parse_args(args)
     # the CLI's defaults are the library's; the test runs a smaller budget
     import fonbw.gap.attribute as att
 
     real = att.diagnose
     att.diagnose = lambda *a, **k: real(*a, **{**k, **FAST})
     try:
-        assert report.diagnose_command(ns) == 0
+        assert cli_diagnose.run(ns) == 0
     finally:
         att.diagnose = real
     res = json.loads((d / "out.json").read_text())
@@ -406,3 +403,20 @@ def test_blind_stroke_limit_at_the_top_of_the_training_range_is_named():
     # a softplus corner against the truth's tanh one: the knee within 0.3 µm
     assert v["params"]["saturation"]["knee"] == pytest.approx(top, abs=0.3)
     assert -1.0 < v["params"]["saturation"]["c"] < -0.5
+
+
+def test_result_object_reads_as_its_json():
+    from fonbw.gap import DiagnosisResult
+
+    verdict = {"effects": ["delay"], "gap_closed": 0.9, "unexplained": False, "at_noise_floor": False,
+               "message": "explained by delay"}
+    res = DiagnosisResult({"rms_validate": 1.0}, {"dominant": "branch"}, [{"effect": "delay"}], verdict,
+                          {"total_s": 1.0}, {"train": [], "validate": []})
+    d = res.to_dict()
+    assert list(d) == ["nominal", "localization", "candidates", "verdict", "timing", "records"]
+    assert res["verdict"] is res.verdict is d["verdict"]
+    assert res.get("candidates", []) == [{"effect": "delay"}] and res.get("nope") is None
+    assert dict(res) == d and json.loads(json.dumps(d))["verdict"] == verdict
+    assert (res.effects, res.gap_closed, res.unexplained, res.message) == (["delay"], 0.9, False, "explained by delay")
+    with pytest.raises(KeyError):
+        res["model"]

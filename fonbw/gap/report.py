@@ -1,14 +1,11 @@
-"""Report of a gap diagnosis: JSON, a self-contained HTML page, and the CLI command.
+"""Report of a gap diagnosis: JSON and a self-contained HTML page.
 
 ``write_html(result, path)`` draws the localization plots (residual spectrum
 against the noise floor, RMS versus time, binned RMS versus input rate,
 amplitude, branch and time since reversal), the ranking table of the
 candidates and a waterfall nominal → +effect … → noise floor, all from the
-result dict alone; the PNGs are embedded as base64, so the page is one file.
-
-``fonbw diagnose --train A.csv [--train B.csv] --validate C.csv [...]
---json OUT.json [--html OUT.html] [--model MODEL.json] [--seed S]`` is
-:func:`add_diagnose_arguments` + :func:`diagnose_command`.
+result alone (a :class:`fonbw.gap.DiagnosisResult` or its ``to_dict()``); the
+PNGs are embedded as base64, so the page is one file.
 """
 from __future__ import annotations
 
@@ -20,11 +17,13 @@ import math
 
 from ..io import atomic_open
 
-__all__ = ["write_json", "write_html", "add_diagnose_arguments", "diagnose_command"]
+__all__ = ["write_json", "write_html"]
 
 
 def write_json(result, path):
-    """Write the diagnosis result as JSON (atomically)."""
+    """Write the diagnosis result (a DiagnosisResult or its dict) as JSON, atomically."""
+    if hasattr(result, "to_dict"):
+        result = result.to_dict()
     with atomic_open(path, "w", encoding="utf-8") as fh:
         json.dump(result, fh, indent=1, ensure_ascii=False, allow_nan=True)
         fh.write("\n")
@@ -147,44 +146,3 @@ noise floor σ = {nom['noise_floor']:.4g} µm.</p>
 """
     with atomic_open(path, "w", encoding="utf-8") as fh:
         fh.write(page)
-
-
-def add_diagnose_arguments(parser):
-    """Arguments of ``fonbw diagnose`` on an argparse parser (or subparser)."""
-    parser.add_argument("--train", action="append", required=True, metavar="CSV",
-                        help="training record (t, u, y); repeat for several")
-    parser.add_argument("--validate", action="append", required=True, metavar="CSV",
-                        help="validation record; repeat for several")
-    parser.add_argument("--json", required=True, metavar="OUT.json", help="write the result here")
-    parser.add_argument("--html", metavar="OUT.html", help="also write a self-contained HTML report")
-    parser.add_argument("--model", metavar="MODEL.json", help="nominal FONBW/NBW model (identified if omitted)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    parser.add_argument("--budget", type=int, default=1000,
-                        help="evaluations of the nominal identification and of each candidate's "
-                             "global search (default 1000)")
-    parser.add_argument("--progress", action="store_true", help="report each step on stderr")
-    return parser
-
-
-def diagnose_command(ns):
-    """Run ``fonbw diagnose`` from parsed arguments; returns the exit code.
-
-    Bad input (unreadable CSV, bad model) raises ValueError (DataError is a
-    ValueError) with a one-line message for the CLI to print.
-    """
-    from ..hysteresis import load_model
-    from ..io import read_record
-    from .attribute import diagnose
-
-    train = [read_record(p) for p in ns.train]
-    val = [read_record(p) for p in ns.validate]
-    model = load_model(ns.model) if getattr(ns, "model", None) else None
-    res = diagnose(train, val, model=model, seed=ns.seed, progress=getattr(ns, "progress", False),
-                   budget=getattr(ns, "budget", 1000))
-    write_json(res, ns.json)
-    if getattr(ns, "html", None):
-        write_html(res, ns.html)
-    v = res["verdict"]
-    print(f"{v.get('message', '')}; nominal RMS {res['nominal']['rms_validate']:.4g} µm, "
-          f"noise floor {res['nominal']['noise_floor']:.4g} µm, gap closed {v['gap_closed']:.3f}")
-    return 0

@@ -1,0 +1,364 @@
+"""Joint refit of the nominal FONBW model and candidate effect blocks.
+
+:class:`Fitter` evaluates a nominal model (eqs. 9-11) with effect blocks of
+:mod:`fonbw.gap.effects` added, for a population of candidate parameter rows,
+by variable projection: the nonlinear parameters (the hysteresis' ρ,
+σ^(1/n)ρ, n, λ1, λ2 and each effect's own) are searched, the linear ones (ku,
+kh, creep gains, drift coefficients) are solved by least squares at every
+evaluation, or by Gauss-Newton with the saturation block, which bends the
+model's own output. :meth:`Fitter.refit` searches the nonlinear parameters
+with :func:`fonbw.de.jde_minimize`: globally over the search space's bounds,
+or locally (a gradient polish in a box around a start).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .. import hysteresis as hyst
+from ..de import jde_minimize
+from ..io import Record
+
+__all__ = ["KIND", "Fitter", "simulate_rows", "x_from_model", "decimate"]
+
+KIND = "fonbw"
+
+
+def simulate_rows(theta, U, dt, memory="fast", N=3):
+    """FONBW outputs [µm] for parameter rows `theta` (P, d), each with its own input row of `U` (P, n).
+
+    Rows whose parameters are invalid or diverge are NaN
+    (:func:`fonbw.hysteresis.simulate_population`, which runs them).
+    """
+    theta = np.atleast_2d(theta)
+    return hyst.simulate_population(KIND, theta, np.ascontiguousarray(U, dtype=float), dt, memory=memory, N=N)
+
+
+class Fitter:
+    """Nominal model plus effect blocks, fitted by variable projection.
+
+    Parameters
+    ----------
+    records : list of Record
+        Training records (same dt).
+    space : fonbw.identify.SearchSpace
+        FONBW search space (gives the basis parameters, the fixed regressors
+        (u/U)^i and the map back to natural parameters).
+    N : int
+        Order of g(u), eq. (10).
+    memory : str
+        GL memory engine.
+    """
+
+    def __init__(self, records, space, N=3, memory="fast"):
+        self.records = records
+        self.space = space
+        self.N = N
+        self.memory = memory
+        self.dt = records[0].dt
+        self.pnames = hyst.param_names(KIND, N)
+        self.y = np.concatenate([r.y for r in records])
+        self.nx = len(space.names)
+
+    # -- design -----------------------------------------------------------
+
+    def _theta(self, X):
+        p = self.space.basis_params(np.atleast_2d(X))
+        return np.column_stack([np.asarray(p[k], dtype=float) for k in self.pnames])
+
+    def design(self, records, X, effects, TH, yrefs):
+        """Regressor matrices, one (n_total, q) array per candidate row.
+
+        ``TH`` holds one (P, k_e) array per effect; ``yrefs`` the nominal
+        output of each record (creep's driving signal). Column order:
+        (u/U)^1..N, ħ, then each effect's additive regressors.
+        """
+        X = np.atleast_2d(X)
+        P = X.shape[0]
+        theta = self._theta(X)
+        inp = [(e, th) for e, th in zip(effects, TH) if e.input_side]
+        # rows that share X and input-side parameters share one simulation
+        key = np.hstack([X] + [th for _, th in inp]) if inp else X
+        uniq, inv = np.unique(key, axis=0, return_inverse=True)
+        inv = np.ravel(inv)
+        first = np.array([int(np.flatnonzero(inv == j)[0]) for j in range(len(uniq))])
+        mats = [[] for _ in range(P)]
+        for rec, yref in zip(records, yrefs):
+            n = len(rec.u)
+            Us = np.empty((len(first), n))
+            for j, p in enumerate(first):
+                u = rec.u
+                for e, th in inp:
+                    u = e.transform_input(u, rec.dt, th[p])
+                Us[j] = u
+            if inp:
+                S = simulate_rows(theta[first], Us, rec.dt, self.memory, self.N)
+            else:
+                S = hyst.simulate_population(KIND, theta[first], rec.u, rec.dt, memory=self.memory, N=self.N)
+            ctx = {"t": np.arange(n) * rec.dt, "y_ref": yref, "dt": rec.dt}
+            # regressors of blocks without nonlinear parameters are the same for every row
+            fixed = {id(e): e.columns(ctx, ()) for e in effects if not e.names}
+            for p in range(P):
+                j = inv[p]
+                F = self.space.fixed_columns(Us[j]).T  # (N, n)
+                M = np.vstack([F, S[j][None, :]])
+                filt, plain, last = [M], [], []
+                for e, th in zip(effects, TH):
+                    C = fixed[id(e)] if id(e) in fixed else e.columns(ctx, th[p])
+                    if C is not None:
+                        (last if e.output_nonlinear else filt if e.filtered_columns else plain).append(C.T)
+                M = np.vstack(filt)
+                for e, th in zip(effects, TH):
+                    M = e.output_op(M, rec.dt, th[p])
+                mats[p].append(np.vstack([M] + plain + last))
+        return [np.hstack(m).T for m in mats]
+
+    def lin_slices(self, effects):
+        """Where each effect's linear parameters sit in the coefficient vector.
+
+        The column order of :meth:`design`: the base columns (N + 1), the
+        filtered regressors, the plain ones, the output nonlinearity last.
+        """
+        k = self.N + 1
+        out = [None] * len(effects)
+        groups = ([i for i, e in enumerate(effects) if e.filtered_columns and not e.output_nonlinear],
+                  [i for i, e in enumerate(effects) if not e.filtered_columns and not e.output_nonlinear],
+                  [i for i, e in enumerate(effects) if e.output_nonlinear])
+        for g in groups:
+            for i in g:
+                q = len(effects[i].lin_names)
+                out[i] = slice(k, k + q)
+                k += q
+        return out
+
+    @staticmethod
+    def outer(effects, TH, p):
+        """The output nonlinearity of row `p` as (effect, parameters), or None."""
+        for e, th in zip(effects, TH):
+            if e.output_nonlinear:
+                return e, np.asarray(th[p], dtype=float)
+        return None
+
+    # -- costs ------------------------------------------------------------
+
+    @staticmethod
+    def solve(A, y):
+        """Least-squares coefficients and residual; non-finite columns -> (None, None).
+
+        Normal equations on unit-norm columns (a few columns, many samples:
+        far cheaper than a QR of A); the residual is formed explicitly, so
+        its accuracy does not suffer from the squared condition number
+        beyond second order.
+        """
+        if not np.all(np.isfinite(A)):
+            return None, None
+        s = np.sqrt(np.einsum("ij,ij->j", A, A))
+        # a regressor these samples do not excite (a saturation knee above
+        # every displacement of a subset) gets coefficient 0, not 1/ε
+        on = s > 1e-10 * max(float(s.max()), 1e-300)
+        As = A[:, on] / s[on]
+        G = As.T @ As
+        try:
+            bs = np.linalg.solve(G, As.T @ y)
+        except np.linalg.LinAlgError:
+            bs, *_ = np.linalg.lstsq(As, y, rcond=None)
+        b = np.zeros(A.shape[1])
+        b[on] = bs / s[on]
+        return b, y - A @ b
+
+    @classmethod
+    def fit_linear(cls, A, y, outer=None, iters=8):
+        """Linear coefficients and residual of ``y ≈ A b``, or of the output
+        nonlinearity ``y ≈ z + c f(z)``, ``z = A[:, :-1] b[:-1]``, ``c = b[-1]``.
+
+        The nonlinear form starts from the plain least-squares solution (the
+        last column of `A` is f driven by the nominal output) and takes
+        Gauss-Newton steps with the Jacobian [(1 + c f'(z)) A[:, :-1], f(z)],
+        halving a step that does not lower the residual. Returns
+        (None, None) for non-finite columns.
+        """
+        b, r = cls.solve(A, y)
+        if outer is None or b is None:
+            return b, r
+        e, th = outer
+        B = A[:, :-1]
+        b = b.copy()
+
+        def resid(b):
+            f, df = e.shape(B @ b[:-1], th)
+            return y - (B @ b[:-1] + b[-1] * f), f, df
+
+        r, f, df = resid(b)
+        sse = float(r @ r)
+        for _ in range(iters):
+            J = np.column_stack([B * (1.0 + b[-1] * df)[:, None], f])
+            step, _ = cls.solve(J, r)
+            if step is None:
+                break
+            lam, better = 1.0, False
+            for _ in range(6):
+                bn = b + lam * step
+                rn, fn, dfn = resid(bn)
+                sn = float(rn @ rn)
+                if sn < sse:
+                    better = True
+                    break
+                lam *= 0.5
+            if not better:
+                break
+            gain = (sse - sn) / max(sse, 1e-300)
+            b, r, f, df, sse = bn, rn, fn, dfn, sn
+            if gain < 1e-9:
+                break
+        return b, r
+
+    @staticmethod
+    def output(A, b, outer=None):
+        """Model output of coefficients `b` on design `A` (see :meth:`fit_linear`)."""
+        if outer is None:
+            return A @ b
+        z = A[:, :-1] @ b[:-1]
+        return z + b[-1] * outer[0].shape(z, outer[1])[0]
+
+    def cost(self, X, effects, TH, yrefs):
+        """Training RMS [µm] of each candidate row (inf for divergent rows)."""
+        out = np.full(np.atleast_2d(X).shape[0], np.inf)
+        for p, A in enumerate(self.design(self.records, X, effects, TH, yrefs)):
+            b, r = self.fit_linear(A, self.y, self.outer(effects, TH, p))
+            if b is not None:
+                out[p] = math.sqrt(float(np.mean(r * r)))
+        return out
+
+    def split(self, Z, effects):
+        Z = np.atleast_2d(Z)
+        X = Z[:, :self.nx]
+        TH, k = [], self.nx
+        for e in effects:
+            TH.append(Z[:, k:k + len(e.names)])
+            k += len(e.names)
+        return X, TH
+
+    # -- refit ------------------------------------------------------------
+
+    def refit(self, effects, x0, th0, yrefs, evals=90, seed=0, new=None, local=True, popsize=4):
+        """Joint refit of the nominal and the effects' nonlinear parameters.
+
+        Parameters
+        ----------
+        effects : list of Effect
+        x0 : ndarray
+            Nominal search vector to start from.
+        th0 : list of ndarray
+            Starting parameters of each effect; for the effect at index
+            `new` (if given) its grid is tried first with everything else fixed.
+        evals : int
+            Evaluation budget (each evaluation simulates every record once).
+        local : bool
+            True: gradient polish in a box around `x0` (±0.5 decade for
+            log-scaled variables, ±15 % of the range otherwise). False: jDE
+            over the full bounds of the search space with `x0` in the
+            initial population, then a polish (a fifth of the budget).
+        popsize : int
+            jDE population (local: 4, only the start matters).
+
+        Returns
+        -------
+        dict with ``x``, ``th`` (list), ``beta``, ``rms`` (training), ``nfev``.
+        """
+        th0 = [np.asarray(t, dtype=float) for t in th0]
+        nfev = 0
+        if new is not None and len(effects[new].names):
+            G = effects[new].grid
+            X = np.repeat(np.asarray(x0)[None, :], len(G), axis=0)
+            TH = [np.repeat(t[None, :], len(G), axis=0) for t in th0]
+            TH[new] = G
+            c = self.cost(X, effects, TH, yrefs)
+            nfev += len(G)
+            th0[new] = G[int(np.argmin(c))]
+        bounds = list(_nominal_bounds(self.space, x0)) if local else [tuple(b) for b in self.space.bounds]
+        logs = list(self.space.log_scale)
+        for e in effects:
+            bounds += e.bounds
+            logs += e.log_scale
+        z0 = np.concatenate([np.asarray(x0, dtype=float)] + th0)
+        z0 = np.clip(z0, [b[0] for b in bounds], [b[1] for b in bounds])
+
+        def fun(Z):
+            X, TH = self.split(Z, effects)
+            return self.cost(X, effects, TH, yrefs)
+
+        if local:
+            max_evals, polish = popsize + int(evals), int(evals)
+        else:
+            max_evals, polish = int(evals), int(evals) // 5
+        res = jde_minimize(fun, bounds, log_scale=logs, popsize=popsize, max_evals=max_evals,
+                           polish=True, polish_maxfev=polish, seed=seed, x0=z0)
+        nfev += res.nfev
+        z = res.x
+        f0 = float(fun(z0[None, :])[0])
+        if not res.fun <= f0:
+            z = z0
+        X, TH = self.split(z, effects)
+        A = self.design(self.records, X, effects, TH, yrefs)[0]
+        beta, r = self.fit_linear(A, self.y, self.outer(effects, TH, 0))
+        return {"x": X[0], "th": [t[0] for t in TH], "beta": beta,
+                "rms": math.sqrt(float(np.mean(r * r))) if beta is not None else math.inf,
+                "nfev": nfev + 1}
+
+    def predict(self, records, fit, effects, yrefs):
+        """Outputs [µm] of a fitted configuration on `records` (list of arrays)."""
+        X = fit["x"][None, :]
+        TH = [t[None, :] for t in fit["th"]]
+        A = self.design(records, X, effects, TH, yrefs)[0]
+        y = self.output(A, fit["beta"], self.outer(effects, TH, 0))
+        out, k = [], 0
+        for r in records:
+            out.append(y[k:k + len(r.u)])
+            k += len(r.u)
+        return out
+
+    def model(self, fit):
+        """The FONBW model (natural parameters) of a fitted configuration."""
+        c = fit["beta"][:self.N]
+        G = float(fit["beta"][self.N])
+        p = self.space.final_params(fit["x"], c, G)
+        theta = np.array([p[k] for k in self.pnames], dtype=float)
+        return hyst.model_from_vector(KIND, theta, self.N, self.memory)
+
+    def effect_params(self, fit, effects):
+        out = {}
+        for e, th, sl in zip(effects, fit["th"], self.lin_slices(effects)):
+            out[e.name] = e.describe(th, fit["beta"][sl])
+        return out
+
+
+def _nominal_bounds(space, x0):
+    """A box around the nominal search vector (the refit is local)."""
+    for (lo, hi), lg, v in zip(space.bounds, space.log_scale, x0):
+        if lg:
+            a, b = v / 10 ** 0.5, v * 10 ** 0.5
+        else:
+            w = 0.15 * (hi - lo)
+            a, b = v - w, v + w
+        yield (max(lo, min(a, v)), min(hi, max(b, v)))
+
+
+def x_from_model(model, space):
+    """Search vector (identify's reparametrization) of a FONBW/NBW model."""
+    p = model.params
+    rho, sigma, n = float(p["rho"]), float(p["sigma"]), float(p["n"])
+    if sigma <= 0:
+        raise ValueError("diagnose: the model's sigma must be > 0 to be refit")
+    x = [rho, sigma ** (1.0 / n) * rho, n]
+    if len(space.names) == 5:
+        x += [float(getattr(model, "lam1", 1.0)), float(getattr(model, "lam2", 1.0))]
+    return np.array(x)
+
+
+def decimate(records, q):
+    """Every q-th sample of each record (the global search runs on these; the
+    inputs of the paper's experiments are far below the new Nyquist frequency)."""
+    if q <= 1:
+        return list(records)
+    return [Record.from_arrays(u=r.u[::q], y=r.y[::q], dt=r.dt * q, path=r.path) for r in records]

@@ -1,0 +1,113 @@
+"""Greedy selection of the effects that explain a gap, and the verdict.
+
+Each greedy step of :class:`fonbw.gap.attribute.Diagnosis` refits every
+remaining candidate on top of the effects accepted so far; :func:`pick_best`
+chooses among the ones that pass their checks, :func:`retry_pool` says which
+candidates the next step tries again, and :func:`verdict` sums it up.
+"""
+from __future__ import annotations
+
+import math
+
+__all__ = ["pick_best", "retry_pool", "verdict"]
+
+
+def pick_best(results, tie_margin):
+    """The candidate a greedy step accepts, or None when none passes.
+
+    Parameters
+    ----------
+    results : list of dict
+        One per candidate tried, each with ``checks`` (``passed``,
+        ``gap_closed_step``, ``delta_bic``, ``identified``).
+    tie_margin : float
+        Passing candidates that close at least the best one's gap_closed
+        minus this margin are tied.
+
+    Returns
+    -------
+    dict or None
+        The chosen element of `results`.
+    """
+    ok = [r for r in results if r["checks"]["passed"]]
+    if not ok:
+        return None
+    best = max(ok, key=lambda r: r["checks"]["gap_closed_step"])  # finite for passing ones
+    # lags of a delay, an amplifier and a resonance close nearly the same
+    # part of the validation gap (the sines at 1-25 Hz cannot tell them
+    # apart); among those the training records' information criterion
+    # decides, which weighs the step edges and charges every parameter
+    tied = [r for r in ok if r["checks"]["gap_closed_step"] >= best["checks"]["gap_closed_step"] - tie_margin]
+    # a block whose fit degenerates into another effect (a "resonance"
+    # above the Nyquist frequency is a lag) yields to a tied one that is
+    # identified
+    best = min(tied, key=lambda r: (not r["checks"]["identified"], r["checks"]["delta_bic"]))
+    # ... and, untied, to an identified passing block that fits the
+    # training records better: a lag the resonance block imitates is
+    # no evidence of a resonance, while the step edges of the training
+    # records (not the validation sines) separate the lags
+    if not best["checks"]["identified"]:
+        alt = [r for r in ok if r["checks"]["identified"]
+               and r["checks"]["delta_bic"] < best["checks"]["delta_bic"]]
+        if alt:
+            best = max(alt, key=lambda r: r["checks"]["gap_closed_step"])
+    return best
+
+
+def retry_pool(pool, lib, chosen, candidates, accepted):
+    """Library indices the next greedy step tries: of `pool`, without the `chosen`
+    index, the effects that helped on their own in the first step.
+
+    Only the three best of them: each retry costs a joint refit.
+    """
+    helped = [c["effect"] for c in sorted(candidates, key=lambda c: -(c["gap_closed"] or -1.0))
+              if (c["gap_closed"] or 0.0) > 0.02 and c["effect"] not in accepted][:3]
+    return [i for i in pool if i != chosen and lib[i].name in helped]
+
+
+def verdict(accepted, candidates, *, mse0, mse, excess0, at_floor, steps, coverage, params):
+    """The verdict of a diagnosis.
+
+    Parameters
+    ----------
+    accepted : list of str
+        Effects accepted, in the order of acceptance.
+    candidates : list of dict
+        First-step candidates (``effect``, ``gap_closed``).
+    mse0, mse : float
+        Validation MSE [µm²] of the nominal model and with the accepted effects.
+    excess0 : float
+        MSE0 − σ² [µm²].
+    at_floor : bool
+        The nominal gap is at the noise floor.
+    steps, coverage, params
+        Reported as they are (waterfall, coverage flags, effect parameters).
+
+    Returns
+    -------
+    dict
+        ``effects``, ``gap_closed``, ``unexplained``, ``at_noise_floor``,
+        ``steps``, ``coverage``, ``params``, ``message``.
+    """
+    total = (mse0 - mse) / excess0 if excess0 > 0 and not at_floor else 0.0
+    # strongest first: by what each accepted effect closes on its own
+    alone = {c["effect"]: (c["gap_closed"] if c["gap_closed"] is not None else -math.inf) for c in candidates}
+    accepted = sorted(accepted, key=lambda e: -alone.get(e, -math.inf))
+    out = {
+        "effects": [] if at_floor else accepted,
+        "gap_closed": float(total),
+        "unexplained": bool(not at_floor and total < 0.5),
+        "at_noise_floor": bool(at_floor),
+        "steps": steps,
+        "coverage": coverage,
+        "params": params,
+    }
+    if at_floor:
+        out["message"] = "the nominal model's gap is at the noise floor: no effect is named"
+    elif not accepted:
+        out["message"] = "unexplained: no candidate effect closes the gap"
+    elif out["unexplained"]:
+        out["message"] = f"partly explained by {', '.join(accepted)}; most of the gap is unexplained"
+    else:
+        out["message"] = f"explained by {', '.join(accepted)}"
+    return out
