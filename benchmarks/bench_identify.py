@@ -13,16 +13,7 @@ compiled population simulator (numba prange over candidates):
 3. scipy DE on all 9 parameters (no projection; data-driven ranges for the
    linear ones, k_h < 0 assumed known): what the projection buys.
 
-Measured 2026-11-21 on this 2-CPU machine, shared with other jobs (load
-average 4-8, so wall times are CPU-starved: user time was a third of real),
-1e5 samples, budget 1500, 2 workers, seed 1:
-
-    method                                   dim  nfev  wall [s]  RMS [µm]
-    fonbw.identify: jDE + projection + polish  5  1490      62.0   0.02000
-    scipy DE + projection (same objective)     5  1500      54.6   0.03391
-    scipy DE, all 9 parameters                 9  1440      37.9   0.55890
-
-(the truth's RMS on the record is 0.02000 µm, the noise level).
+The figures of a run are in BENCHMARKS.md (Identification speed).
 
 Usage::
 
@@ -35,7 +26,6 @@ import argparse
 import sys
 import time
 from pathlib import Path
-from fonbw.signals import eq19_input
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -48,6 +38,7 @@ from fonbw.de import _Space  # noqa: E402
 from fonbw.hysteresis import FONBW  # noqa: E402
 from fonbw.identify import _as_records, _Projected, identify, rms_cost, search_space  # noqa: E402
 from fonbw.io import Record  # noqa: E402
+from fonbw.signals import eq19_input  # noqa: E402
 
 NOISE = 0.02
 TRUE = dict(ku=[0.18, -1.4e-4, -7.7e-8], kh=-2.0, rho=0.02, sigma=0.8, n=1.5,
