@@ -19,10 +19,11 @@ def _numba_cache_dir():
 
     numba invalidates a cached function only when *its own* file changes, but
     the kernels call (and inline) kernels of other modules: after an edit of
-    fractional.py a cached hysteresis or compensate kernel would silently run
-    the old code. A cache directory named by a hash of every source file of
-    the package makes any edit (or upgrade) start a fresh cache. An explicit
-    NUMBA_CACHE_DIR is respected.
+    the fractional kernels a cached hysteresis or compensate kernel would
+    silently run the old code. A cache directory named by a hash of every
+    source file of the package, subpackages included (kernels live in
+    fonbw.hysteresis and fonbw.fractional too), makes any edit (or upgrade)
+    start a fresh cache. An explicit NUMBA_CACHE_DIR is respected.
     """
     import hashlib
     import os
@@ -33,11 +34,13 @@ def _numba_cache_dir():
         return
     here = os.path.dirname(os.path.abspath(__file__))
     h = hashlib.sha256(numba.__version__.encode())
-    for root in (here, os.path.join(here, "gap")):
-        for name in sorted(os.listdir(root)):
+    for root, dirs, files in os.walk(here):
+        dirs[:] = sorted(d for d in dirs if d != "__pycache__")  # fixed order
+        for name in sorted(files):
             if name.endswith(".py"):
-                with open(os.path.join(root, name), "rb") as fh:
-                    h.update(name.encode() + b"\0" + fh.read())
+                path = os.path.join(root, name)
+                with open(path, "rb") as fh:
+                    h.update(os.path.relpath(path, here).encode() + b"\0" + fh.read())
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     path = os.path.join(base, "fonbw", "numba-" + h.hexdigest()[:16])
     try:
