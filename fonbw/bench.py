@@ -315,12 +315,16 @@ class Bench:
         lo, hi = self.params.adc_range
         return (hi - lo) / 2.0**self.quant_bits
 
-    def actuator_voltage(self, u) -> np.ndarray:
-        """Voltage on the PEA [V] for the commanded actuator voltage `u` [V]."""
-        u = _as_input(u)
+    # The chain is written once, as four stages acting on a block of samples
+    # from a _ChainState: run() passes the whole record as one block, the
+    # stepper one sample at a time, so the two agree bit for bit.
+
+    def _voltage(self, u, st: "_ChainState") -> np.ndarray:
+        """PEA voltage [V] for a block of commands `u` [V]: delay, rails, D/A, slew, amplifier."""
         pr = self.params
         if self.delay:
-            u = np.concatenate([np.zeros(min(self.delay, u.size)), u[: max(u.size - self.delay, 0)]])
+            ext = np.concatenate([st.buf, u])
+            u, st.buf = ext[:u.size], ext[u.size:]
         v = np.clip(u, self.u_min, self.u_max)
         g = pr.amp_gain
         if self.dac_bits is not None:
@@ -328,47 +332,72 @@ class Bench:
             q = 20.0 / 2.0**self.dac_bits
             v = np.round(v / g / q) * (q * g)
         if pr.slew_rate is not None:
-            v = _slew_kernel(v, pr.slew_rate * self.dt, 0.0)
+            v = _slew_kernel(v, pr.slew_rate * self.dt, st.slew)
+            st.slew = float(v[-1])
         if self.amplifier:
             # simplification: the slew limit acts before the output pole
-            return self._amp.simulate(v / g)
+            return st.amp.run(v / g)
         return v
+
+    def _operator(self, v, st: "_ChainState") -> np.ndarray:
+        """Bare hysteresis [µm] for a block of PEA voltages `v` [V]: RD-PI, then the polynomial."""
+        pr = self.params
+        w = np.empty_like(v)
+        alpha = pr.rate_alpha if self.rate_dependent else 0.0
+        _rdpi_kernel(v, self.dt, pr.thresholds, pr.weights, alpha, pr.rate_tau, st.z, st.rate, w)
+        w -= float(pr.weights @ pr.thresholds)
+        if not self.asymmetric:
+            return self._line * w
+        a1, a2, a3 = pr.poly
+        return w * (a1 + w * (a2 + w * a3))
+
+    def _displacement(self, u, st: "_ChainState") -> np.ndarray:
+        """True displacement [µm] for a block of commands `u` [V] (before the sensor)."""
+        v = self._voltage(u, st)
+        y = self._operator(v, st)
+        if self.creep:
+            y = st.creep.run(y)
+        if self.dynamics:
+            y = st.mech.run(y)
+        y = y + self.drift_signal(y.size, st.k)
+        st.k += y.size
+        st.voltage, st.displacement = float(v[-1]), float(y[-1])
+        return y
+
+    def _measure(self, x, st: "_ChainState", noiseless: bool) -> np.ndarray:
+        """Reading [µm] of a block of displacements `x` [µm]: sensor filter, noise, ADC."""
+        if self.dynamics:
+            x = st.sens.run(x)
+        if noiseless:
+            return x
+        if self.noise_std > 0:
+            x = x + self._rng.normal(0.0, self.noise_std, x.size)
+        if self.quant_bits is not None:
+            x = self._adc(x)
+        return x
+
+    def actuator_voltage(self, u) -> np.ndarray:
+        """Voltage on the PEA [V] for the commanded actuator voltage `u` [V]."""
+        return self._voltage(_as_input(u), _ChainState(self))
 
     def hysteresis(self, v) -> np.ndarray:
         """Bare hysteresis: rate-dependent PI and output polynomial [µm] for PEA voltage `v` [V].
 
         From rest after a previous full cycle, zeroed there (see module docstring).
         """
-        v = _as_input(v)
-        pr = self.params
-        r0 = pr.thresholds
-        z = r0.copy()
-        state = np.zeros(2)
-        w = np.empty_like(v)
-        alpha = pr.rate_alpha if self.rate_dependent else 0.0
-        _rdpi_kernel(v, self.dt, r0, pr.weights, alpha, pr.rate_tau, z, state, w)
-        w -= float(pr.weights @ r0)
-        if not self.asymmetric:
-            return self._line * w
-        a1, a2, a3 = pr.poly
-        return w * (a1 + w * (a2 + w * a3))
+        return self._operator(_as_input(v), _ChainState(self))
 
-    def drift_signal(self, n: int) -> np.ndarray:
-        """Thermal drift d(t) [µm] over `n` samples (zeros if drift is off)."""
+    def drift_signal(self, n: int, k0: int = 0) -> np.ndarray:
+        """Thermal drift d(t) [µm] over `n` samples from sample `k0` (zeros if drift is off)."""
         if not self.drift:
             return np.zeros(n)
         pr = self.params
-        t = np.arange(n) * self.dt
+        t = (k0 + np.arange(n)) * self.dt
         return pr.drift_rate * pr.drift_tau * -np.expm1(-t / pr.drift_tau)
 
     def true_output(self, u) -> np.ndarray:
         """True displacement [µm] for the command `u` [V]: before the sensor."""
-        y = self.hysteresis(self.actuator_voltage(u))
-        if self.creep:
-            y = self._creep.simulate(y)
-        if self.dynamics:
-            y = self._mech.simulate(y)
-        return y + self.drift_signal(y.size)
+        return self._displacement(_as_input(u), _ChainState(self))
 
     def run(self, u, noiseless: bool = False) -> np.ndarray:
         """Measured displacement [µm] for the command `u` [V], from rest.
@@ -377,16 +406,8 @@ class Bench:
         ``noiseless=True`` leaves out noise and quantization (and draws no
         random numbers).
         """
-        x = self.true_output(u)
-        if self.dynamics:
-            x = self._sens.simulate(x)
-        if noiseless:
-            return x
-        if self.noise_std > 0:
-            x = x + self._rng.normal(0.0, self.noise_std, x.size)
-        if self.quant_bits is not None:
-            x = self._adc(x)
-        return x
+        st = _ChainState(self)
+        return self._measure(self._displacement(_as_input(u), st), st, noiseless)
 
     def _adc(self, x):
         lo, _ = self.params.adc_range
@@ -488,17 +509,46 @@ class Bench:
         return cls(seed, fs, **base)
 
 
+class _ChainState:
+    """Where the bench's signal chain stands: what a block of samples needs to
+    continue it. A new one is at rest (see the module docstring)."""
+
+    def __init__(self, bench: Bench):
+        self.amp, self.creep, self.mech, self.sens = (
+            _plant.LinearStepper(s.sys) for s in (bench._amp, bench._creep, bench._mech, bench._sens))
+        self.buf = np.zeros(bench.delay)  # the delayed commands [V], oldest first
+        self.slew = 0.0  # last slew-limited voltage [V]
+        self.z = bench.params.thresholds.copy()  # play operator outputs [V]
+        self.rate = np.zeros(2)  # previous PEA voltage [V], filtered |rate| [V/s]
+        self.k = 0  # samples done
+        self.voltage = 0.0  # PEA voltage [V] of the last sample
+        self.displacement = 0.0  # true displacement [µm] of the last sample
+
+    def get(self) -> dict:
+        return {"k": self.k, "z": self.z.copy(), "rate": self.rate.copy(), "buf": self.buf.copy(),
+                "slew_prev": self.slew, "voltage": self.voltage, "displacement": self.displacement,
+                "lin": [s.get_state() for s in (self.amp, self.creep, self.mech, self.sens)]}
+
+    def set(self, st: dict) -> None:
+        self.k = int(st["k"])
+        self.z, self.rate, self.buf = st["z"].copy(), st["rate"].copy(), st["buf"].copy()
+        self.slew = float(st["slew_prev"])
+        self.voltage, self.displacement = float(st["voltage"]), float(st["displacement"])
+        for s, x in zip((self.amp, self.creep, self.mech, self.sens), st["lin"]):
+            s.set_state(x)
+
+
 class BenchStepper:
     """The bench one sample at a time, for feedback loops around it.
 
     ``y_k = step(u_k)`` gives the measured displacement [µm] for the command
     u_k [V]; the sequence equals :meth:`Bench.run` on the same input (bit for
-    bit, noise included: both draw from the bench's generator in the same
-    order). With the default chain y_k does not depend on u_k (the
-    amplifier and mechanics are strictly proper and there is a one-sample
-    delay); with every effect off it does. In a feedback loop use the value
-    returned by the previous call as the measurement, the one-sample
-    computational delay of a real DAQ loop::
+    bit, noise included: both run the bench's one chain definition and draw
+    from the bench's generator in the same order). With the default chain
+    y_k does not depend on u_k (the amplifier and mechanics are strictly
+    proper and there is a one-sample delay); with every effect off it does.
+    In a feedback loop use the value returned by the previous call as the
+    measurement, the one-sample computational delay of a real DAQ loop::
 
         y = 0.0
         for r_k in r:
@@ -513,95 +563,31 @@ class BenchStepper:
     """
 
     def __init__(self, bench: Bench, noiseless: bool = False):
-        b = self.bench = bench
+        self.bench = bench
         self.noiseless = bool(noiseless)
-        pr = b.params
-        self._amp = _plant.LinearStepper(b._amp.sys)
-        self._creep = _plant.LinearStepper(b._creep.sys)
-        self._mech = _plant.LinearStepper(b._mech.sys)
-        self._sens = _plant.LinearStepper(b._sens.sys)
-        self._alpha = pr.rate_alpha if b.rate_dependent else 0.0
-        self._w0 = float(pr.weights @ pr.thresholds)
-        self._v1, self._w1 = np.zeros(1), np.zeros(1)
         self.reset()
+
+    k = property(lambda self: self._st.k, doc="Samples done.")
+    voltage = property(lambda self: self._st.voltage, doc="PEA voltage [V] of the last step.")
+    displacement = property(lambda self: self._st.displacement,
+                            doc="True displacement [µm] of the last step (before the sensor).")
 
     def reset(self) -> None:
         """Back to rest (the noise generator is not rewound)."""
-        for s in (self._amp, self._creep, self._mech, self._sens):
-            s.reset()
-        self._z = self.bench.params.thresholds.copy()
-        self._rate = np.zeros(2)
-        self._buf = np.zeros(self.bench.delay)
-        self._slew_prev = 0.0
-        self.k = 0
-        self.voltage = 0.0
-        self.displacement = 0.0
+        self._st = _ChainState(self.bench)
 
     def get_state(self) -> dict:
         """Everything needed to replay from here, the generator state included."""
-        return {
-            "k": self.k, "z": self._z.copy(), "rate": self._rate.copy(), "buf": self._buf.copy(),
-            "slew_prev": self._slew_prev,
-            "lin": [s.get_state() for s in (self._amp, self._creep, self._mech, self._sens)],
-            "rng": self.bench._rng.bit_generator.state,
-        }
+        return {**self._st.get(), "rng": self.bench._rng.bit_generator.state}
 
     def set_state(self, st: dict) -> None:
-        self.k = int(st["k"])
-        self._z, self._rate, self._buf = st["z"].copy(), st["rate"].copy(), st["buf"].copy()
-        self._slew_prev = float(st["slew_prev"])
-        for s, x in zip((self._amp, self._creep, self._mech, self._sens), st["lin"]):
-            s.set_state(x)
+        self._st.set(st)
         self.bench._rng.bit_generator.state = st["rng"]
 
     def step(self, u: float) -> float:
         """Apply the command u_k [V]; return the measured displacement y_k [µm]."""
-        b, pr = self.bench, self.bench.params
         u = float(u)
         if not math.isfinite(u):
             raise ValueError(f"command at sample {self.k} is not finite: {u!r}")
-        if b.delay:
-            # ring buffer: the slot of sample k - delay is reused for sample k
-            j = self.k % b.delay
-            u, self._buf[j] = float(self._buf[j]), u
-        v = min(max(u, b.u_min), b.u_max)
-        g = pr.amp_gain
-        if b.dac_bits is not None:
-            q = 20.0 / 2.0**b.dac_bits
-            v = round(v / g / q) * (q * g)  # round-half-even, as np.round
-        if pr.slew_rate is not None:
-            m = pr.slew_rate * b.dt
-            v = self._slew_prev + min(max(v - self._slew_prev, -m), m)
-            self._slew_prev = v
-        if b.amplifier:
-            v = self._amp.step(v / g)
-        self.voltage = v
-        self._v1[0] = v
-        _rdpi_kernel(self._v1, b.dt, pr.thresholds, pr.weights, self._alpha, pr.rate_tau,
-                     self._z, self._rate, self._w1)
-        w = float(self._w1[0]) - self._w0
-        if b.asymmetric:
-            a1, a2, a3 = pr.poly
-            y = w * (a1 + w * (a2 + w * a3))
-        else:
-            y = b._line * w
-        if b.creep:
-            y = self._creep.step(y)
-        if b.dynamics:
-            y = self._mech.step(y)
-        if b.drift:
-            t = self.k * b.dt
-            y = y + pr.drift_rate * pr.drift_tau * -math.expm1(-t / pr.drift_tau)
-        self.displacement = y
-        if b.dynamics:
-            y = self._sens.step(y)
-        self.k += 1
-        if self.noiseless:
-            return y
-        if b.noise_std > 0:
-            y = y + b._rng.normal(0.0, b.noise_std)
-        if b.quant_bits is not None:
-            lo, _ = pr.adc_range
-            q = b.adc_step
-            y = lo + min(max(round((y - lo) / q), 0), 2**b.quant_bits - 1) * q
-        return y
+        b, st = self.bench, self._st
+        return float(b._measure(b._displacement(np.array([u]), st), st, self.noiseless)[0])
