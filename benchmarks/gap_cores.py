@@ -51,7 +51,7 @@ import numba as nb
 import numpy as np
 
 __all__ = ["FAMILIES", "Core", "draw_core", "make_core", "clip_input", "mid_drive_record",
-           "loop_metrics", "everett"]
+           "loop_metrics", "everett", "preisach_density"]
 
 FAMILIES = ("fonbw", "preisach", "pi", "rate")
 
@@ -579,7 +579,7 @@ def _draw_thresholds(rng, m, top=55.0):
     return [float(v) for v in np.sort(r)]
 
 
-def _calibrate_pi(r, w, env, rng, S, W, extra=None):
+def _calibrate_pi(r, w, env, S, W):
     """Linear weight w0 and the envelope normalization for stroke S and width fraction W."""
     u = _sine(1.0, periods=2)
     n1 = u.size // 2
@@ -592,7 +592,6 @@ def _calibrate_pi(r, w, env, rng, S, W, extra=None):
     zz = z[-n1:]
     Z = float(zz.max() - zz.min())
     p = {"r": r, "w": w, "w0": float(w0), "envelope": env, "Z": Z, "S": S}
-    p.update(extra or {})
     g = _envelope(np.array([0.0, zz.min() / Z, zz.max() / Z]), env)
     p["g0"], p["gspan"] = float(g[0]), float(g[2] - g[1])
     return p
@@ -603,7 +602,7 @@ def _draw_pi(rng):
         m = int(rng.integers(5, 13))
         r = _draw_thresholds(rng, m)
         w = [float(v) for v in rng.gamma(1.5, 1.0, m) * np.exp(-np.asarray(r) / rng.uniform(20, 80))]
-        p = _calibrate_pi(r, w, _draw_envelope(rng), rng, float(rng.uniform(10, 25)), float(rng.uniform(0.05, 0.2)))
+        p = _calibrate_pi(r, w, _draw_envelope(rng), float(rng.uniform(10, 25)), float(rng.uniform(0.05, 0.2)))
         if p is not None:
             return PICore(p)
     raise RuntimeError("no PI draw met the loop-width range")
