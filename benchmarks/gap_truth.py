@@ -4,7 +4,8 @@ Used by ``benchmarks/blind_gap.py`` and ``tests/test_gap.py``; it uses the
 library's public API only. Written apart from :mod:`fonbw.gap.effects` on
 purpose: every effect here has other equations or another discretization
 than the candidate block the diagnosis may use to explain it, so the blind
-test is not rigged.
+test is not rigged. The equations are in :mod:`gap_effects_truth`, the
+hysteresis cores in :mod:`gap_cores`.
 
 =============  =========================================  ===========================================
 effect         truth (here)                               candidate block (fonbw.gap.effects)
@@ -23,35 +24,50 @@ drift          A (1 − e^(−t/τ_th)) + integrated random     (t/10 s), (t/10 
 saturation     smooth stroke limit (tanh knee) on the      slope change c over a softplus corner
                displacement                                of width w at the knee, on the model's
                                                            own output, c solved (Gauss-Newton)
+clip           the amplifier's rail: the voltage after     none yet (JSON name ``clip``). Not the
+               the amplifier is clipped at a rail below    saturation block: the rail acts before
+               the drive's peak (lower rail −30 V), with   the hysteresis, so the core's memory
+               a softplus knee of 0.2–1.5 V; a material    turns at the rail and the descending
+               share of the samples is clipped             branch starts from the clipped voltage
 hum            50 Hz + 150 Hz mains pickup, random phase   none: outside the library
 =============  =========================================  ===========================================
 
-The hysteresis is the library's FONBW (:data:`fonbw.data.DEFAULT_MODEL`
-perturbed a few per cent per scenario). Sensor noise is white Gaussian with a
-16-bit ADC over ±40 µm. Magnitudes are set by bisection on each effect's
-strength so that the RMS change it makes on the validation records equals a
-target multiple of the noise standard deviation.
+The hysteresis is a truth core of :mod:`gap_cores` (families fonbw,
+preisach, pi, rate) drawn per scenario; without a family,
+:func:`draw_scenario` keeps the library's FONBW
+(:data:`fonbw.data.DEFAULT_MODEL` perturbed a few per cent), the draw of the
+fixed-seed tests. Sensor noise is white Gaussian with a 16-bit ADC over
+±40 µm. Magnitudes are set by bisection on each effect's strength so that
+the RMS change it makes on the validation records equals a target multiple
+of the noise standard deviation.
+
+A record may start mid-drive: its drive is simulated from rest through every
+stateful block (core, creep, dynamics, amplifier, drift) and the record keeps
+the samples from its start on (:func:`gap_cores.mid_drive_record`).
 """
 from __future__ import annotations
 
 import math
 
-import numba as nb
 import numpy as np
-from scipy import signal
-from scipy.interpolate import PchipInterpolator
 
 from fonbw import FONBW, load_model
 from fonbw import signals as _sig
 from fonbw.data import DEFAULT_MODEL
 from fonbw.io import Record
 
-__all__ = ["TRUTH_EFFECTS", "KINDS", "Truth", "default_experiments", "draw_scenario", "scenario_kind", "magnitude"]
+import gap_cores
+from gap_effects_truth import (LEGACY_POOL, POOL, TRUTH_EFFECTS, _amplifier_ode, clipped_share,  # noqa: F401
+                               input_side, output_side, strength, strength_params)
 
-TRUTH_EFFECTS = ("creep", "dynamics", "amplifier", "delay", "drift", "saturation", "hum")
+__all__ = ["TRUTH_EFFECTS", "KINDS", "Truth", "default_experiments", "draw_scenario", "scenario_kind",
+           "scenario_family", "magnitude", "calibrate"]
+
 FS = 5000.0
 KINDS = ("null", "single", "pair", "outside", "below")
 KIND_P = (0.15, 0.45, 0.2, 0.1, 0.1)  # probabilities of KINDS
+# a record that starts mid-drive starts within this share of its drive
+MID_START = (0.15, 0.45)
 
 
 def default_experiments(fs=FS, scale=1.0):
@@ -81,60 +97,27 @@ def default_experiments(fs=FS, scale=1.0):
     return train, val
 
 
-@nb.njit(cache=True)
-def _amplifier_ode(u, dt, f_c, slew, substeps=16):  # pragma: no cover - compiled
-    """Amplifier with an internal pole at 4 f_c driving the capacitive load.
-
-    The command u is held over each sample interval (the DAC) and the output
-    is read at the interval's end. Internal stage: dw/dt = 8π f_c (u − w),
-    exact per sub-step. Load: dv/dt = clip((w − v)/τ, ±slew), τ = 1/(2π f_c):
-    the output current is limited, so the voltage slews linearly until it is
-    within slew·τ of w and then relaxes exponentially; solved exactly per
-    sub-step with w at the sub-step's midpoint. At rest at u_0.
-    """
-    out = np.empty_like(u)
-    h = dt / substeps
-    tau = 1.0 / (2.0 * math.pi * f_c)
-    aw = math.exp(-h * 4.0 * 2.0 * math.pi * f_c)
-    aw2 = math.exp(-0.5 * h * 4.0 * 2.0 * math.pi * f_c)
-    band = slew * tau
-    w = u[0]
-    v = u[0]
-    for k in range(u.shape[0]):
-        for _ in range(substeps):
-            wm = u[k] + (w - u[k]) * aw2
-            w = u[k] + (w - u[k]) * aw
-            e = wm - v
-            rest = h
-            if abs(e) > band:
-                t1 = (abs(e) - band) / slew
-                if t1 >= h:
-                    v += math.copysign(slew * h, e)
-                    continue
-                v += math.copysign(slew * t1, e)
-                rest = h - t1
-            v = wm - (wm - v) * math.exp(-rest / tau)
-        out[k] = v
-    return out
-
-
-def _lowpass_tustin(x, tau, dt):
-    c = dt / (2.0 * tau + dt)
-    b = [c, c]
-    a = [1.0, (dt - 2.0 * tau) / (2.0 * tau + dt)]
-    zi = signal.lfilter_zi(b, a) * x[0]
-    return signal.lfilter(b, a, x, zi=zi)[0]
+def split_drive(item):
+    """``(name, history, u_record)`` of an input item ``(name, u)`` or ``(name, u_full, start)``."""
+    if len(item) == 2:
+        return item[0], None, np.asarray(item[1], dtype=float)
+    name, u_full, start = item
+    if not start:
+        return name, None, np.asarray(u_full, dtype=float)
+    h, u = gap_cores.mid_drive_record(u_full, start)
+    return name, h, u
 
 
 class Truth:
-    """A "real" actuator: FONBW hysteresis plus the chosen effects.
+    """A "real" actuator: a hysteresis core plus the chosen effects.
 
     Parameters
     ----------
-    hyst : FONBW
+    hyst : gap_cores.Core or FONBW
+        Anything with ``simulate(u, dt)`` from rest.
     effects : dict
         ``{name: params}`` with name in :data:`TRUTH_EFFECTS` (see
-        :meth:`apply` for the parameters of each).
+        :mod:`gap_effects_truth` for the parameters of each).
     noise_std : float
         Sensor noise [µm].
     fs : float
@@ -154,60 +137,49 @@ class Truth:
         self.dt = 1.0 / self.fs
         self.seed = seed
 
-    def output(self, u, rec_index=0, effects=None):
-        """Noiseless displacement [µm] for the command u [V]."""
-        eff = self.effects if effects is None else effects
-        dt = self.dt
-        u = np.asarray(u, dtype=float)
-        t = np.arange(u.size) * dt
-        rng = np.random.default_rng([self.seed, rec_index, 7])
-        v = u
-        if "delay" in eff:
-            td = eff["delay"]["seconds"]
-            # monotone cubic (PCHIP) reconstruction of the command: third-order
-            # on smooth inputs, and an S-shaped edge without overshoot at a
-            # step. A cubic spline rings on both sides of a step (Gibbs), a
-            # resonance-like signature no DAC puts out
-            cs = PchipInterpolator(t, u)
-            ts = t - td
-            v = np.where(ts <= 0, u[0], cs(np.clip(ts, 0, None)))
-        if "amplifier" in eff:
-            p = eff["amplifier"]
-            v = _amplifier_ode(np.ascontiguousarray(v), dt, p["f_c"], p.get("slew") or math.inf)
-        y = self.hyst.simulate(v, dt)
-        if "creep" in eff:
-            g = eff["creep"]["gamma"]  # fraction of the step per decade of time
-            taus = np.logspace(-3, 2, 12)
-            # 12 modes over 5 decades: each carries 5/12 decade of log-creep
-            w = g * 5.0 / 12.0
-            y = y + sum(w * (_lowpass_tustin(y, tau, dt) - y) for tau in taus)
-        if "saturation" in eff:
-            knee, width = eff["saturation"]["knee"], eff["saturation"]["width"]
-            over = y > knee
-            y = np.where(over, knee + width * np.tanh((y - knee) / width), y)
-        if "dynamics" in eff:
-            wn = 2 * math.pi * eff["dynamics"]["f_res"]
-            z = eff["dynamics"]["zeta"]
-            w2 = 3.3 * wn
-            # a main mode and a weaker second one (a stage on a stack)
-            num = np.polyadd(0.96 * wn * wn * np.array([1.0, 2 * 0.1 * w2, w2 * w2]),
-                             0.04 * w2 * w2 * np.array([1.0, 2 * z * wn, wn * wn]))
-            den = np.polymul([1.0, 2 * z * wn, wn * wn], [1.0, 2 * 0.1 * w2, w2 * w2])
-            _, yy, _ = signal.lsim(signal.lti(num, den), y - y[0], t)
-            y = yy + y[0]
-        if "drift" in eff:
-            p = eff["drift"]
-            walk = np.cumsum(rng.standard_normal(u.size)) * p["walk"] * math.sqrt(dt)
-            y = y + p["amp"] * -np.expm1(-t / p["tau"]) + _lowpass_tustin(walk, 0.5, dt)
-        if "hum" in eff:
-            a = eff["hum"]["amp"]
-            ph = rng.uniform(0, 2 * math.pi, 2)
-            y = y + a * np.sin(2 * math.pi * 50 * t + ph[0]) + a / 3 * np.sin(2 * math.pi * 150 * t + ph[1])
-        return y
+    @property
+    def core(self):
+        """The hysteresis core (the same object as ``hyst``)."""
+        return self.hyst
 
-    def record(self, u, name, rec_index):
-        """A measured record: noise and 16-bit ADC over ±40 µm added."""
-        y = self.output(u, rec_index)
+    def output(self, u, rec_index=0, effects=None, history=None):
+        """Noiseless displacement [µm] for the command u [V].
+
+        Parameters
+        ----------
+        u : array_like
+            The record's command [V].
+        rec_index : int
+            Index of the record (seeds its drift walk and hum phases).
+        effects : dict, optional
+            Effects to apply instead of the truth's own.
+        history : array_like, optional
+            Command [V] of the drive before the record: the whole drive is
+            simulated from rest through every block and the record's samples
+            are cut out after, so blocks with state (core, creep, dynamics,
+            amplifier, drift) enter the record where the history left them.
+
+        Returns
+        -------
+        ndarray
+            One value per sample of u.
+        """
+        eff = self.effects if effects is None else effects
+        u = np.asarray(u, dtype=float)
+        n0 = 0
+        if history is not None and len(history):
+            n0 = len(history)
+            u = np.concatenate([np.asarray(history, dtype=float), u])
+        rng = np.random.default_rng([self.seed, rec_index, 7])
+        v = input_side(u, eff, self.dt)
+        y = self.hyst.simulate(v, self.dt)
+        y = output_side(y, eff, self.dt, rng)
+        return y[n0:] if n0 else y
+
+    def record(self, u, name, rec_index, history=None):
+        """A measured record: noise and 16-bit ADC over ±40 µm added (see :meth:`output`)."""
+        u = np.asarray(u, dtype=float)
+        y = self.output(u, rec_index, history=history)
         rng = np.random.default_rng([self.seed, rec_index, 11])
         y = y + rng.normal(0.0, self.noise_std, y.size)
         q = 80.0 / 2 ** 16
@@ -216,59 +188,52 @@ class Truth:
 
 
 def magnitude(truth, inputs, name, params):
-    """RMS change [in noise std] that effect `name` alone makes on `inputs`."""
+    """RMS change [in noise std] that effect `name` alone makes on `inputs`.
+
+    `inputs` items are ``(name, u)`` or ``(name, u_full, start)`` (a record
+    that starts mid-drive; measured on the record's samples only).
+    """
     num = 0.0
     n = 0
-    for i, (_, u) in enumerate(inputs):
-        a = truth.output(u, 100 + i, effects={})
-        b = truth.output(u, 100 + i, effects={name: params})
+    for i, item in enumerate(inputs):
+        _, h, u = split_drive(item)
+        a = truth.output(u, 100 + i, effects={}, history=h)
+        b = truth.output(u, 100 + i, effects={name: params}, history=h)
         num += float(np.sum((a - b) ** 2))
         n += u.size
     return math.sqrt(num / n) / truth.noise_std
 
 
-def _strength(name, s, rng_params):
-    """Effect parameters for strength s ∈ [0, 1] (monotone in magnitude)."""
-    p = rng_params
-    if name == "creep":
-        return {"gamma": 10 ** (-5 + 4 * s)}
-    if name == "dynamics":
-        return {"f_res": 10 ** (math.log10(2e4) - s * (math.log10(2e4) - math.log10(60))), "zeta": p["zeta"]}
-    if name == "amplifier":
-        fc = 10 ** (math.log10(5e4) - s * (math.log10(5e4) - math.log10(5)))
-        return {"f_c": fc, "slew": (p["slew_k"] * 2 * math.pi * fc * 120.0) if p["slew_k"] else None}
-    if name == "delay":
-        return {"seconds": 10 ** (-6 + 3.5 * s)}
-    if name == "drift":
-        a = 10 ** (-3 + 4.5 * s)
-        # the random walk adds ~5 % of the deterministic drift over 10 s
-        return {"amp": a, "tau": p["tau"], "walk": 0.16 * a / p["tau"]}
-    if name == "saturation":
-        return {"knee": p["ymax"] * (1.05 - 0.5 * s), "width": 0.3 + 2.0 * s}
-    if name == "hum":
-        return {"amp": 10 ** (-4 + 4 * s)}
-    raise ValueError(name)
-
-
 def calibrate(truth, inputs, name, target, rng):
-    """Effect parameters whose magnitude on `inputs` is `target` noise stds (bisection)."""
-    rp = {"zeta": float(rng.uniform(0.05, 0.3)), "slew_k": float(rng.choice([0.0, rng.uniform(0.3, 1.0)])),
-          "tau": float(rng.uniform(20, 200)),
-          # the top of the stroke the records dwell at: FONBW answers an
-          # instant step with a one-sample spike (the GL derivative of the
-          # step), which a plain max would take for the stroke
-          "ymax": float(np.quantile(np.concatenate([truth.output(u, effects={}) for _, u in inputs]), 0.999))}
+    """Effect parameters whose magnitude on `inputs` is `target` noise stds (bisection).
+
+    Returns
+    -------
+    params : dict
+        For clip, with the share of the records' command samples above the
+        rail (``share``).
+    magnitude : float
+        Reached magnitude [noise stds]; below target when even the strongest
+        setting does not reach it.
+    """
+    drives = [split_drive(item) for item in inputs]
+    # the top of the stroke the records dwell at: FONBW answers an instant
+    # step with a one-sample spike (the GL derivative of the step), which a
+    # plain max would take for the stroke
+    y_top = np.quantile(np.concatenate([truth.output(u, effects={}, history=h) for _, h, u in drives]), 0.999)
+    rp = strength_params(name, rng, y_top, [u for _, _, u in drives])
     lo, hi = 0.0, 1.0
-    m_hi = magnitude(truth, inputs, name, _strength(name, hi, rp))
-    if m_hi < target:
-        return _strength(name, hi, rp), m_hi
-    for _ in range(14):
-        mid = 0.5 * (lo + hi)
-        if magnitude(truth, inputs, name, _strength(name, mid, rp)) < target:
-            lo = mid
-        else:
-            hi = mid
-    p = _strength(name, hi, rp)
+    m_hi = magnitude(truth, inputs, name, strength(name, hi, rp))
+    if m_hi >= target:
+        for _ in range(14):
+            mid = 0.5 * (lo + hi)
+            if magnitude(truth, inputs, name, strength(name, mid, rp)) < target:
+                lo = mid
+            else:
+                hi = mid
+    p = strength(name, hi, rp)
+    if name == "clip":
+        p["share"] = clipped_share(p, [u for _, _, u in drives])
     return p, magnitude(truth, inputs, name, p)
 
 
@@ -277,7 +242,63 @@ def scenario_kind(seed):
     return str(np.random.default_rng([seed, 2026]).choice(KINDS, p=KIND_P))
 
 
-def draw_scenario(seed, kind=None, scale=1.0, fs=FS):
+def scenario_family(seed, families=gap_cores.FAMILIES):
+    """The core family of scenario `seed`: uniform over `families` (cheap)."""
+    families = tuple(families)
+    return str(families[int(np.random.default_rng([seed, 2027]).integers(len(families)))])
+
+
+def _legacy_fonbw(rng):
+    """The library's FONBW a few per cent off :data:`fonbw.data.DEFAULT_MODEL` (the draw of the fixed-seed tests)."""
+    pr = load_model(DEFAULT_MODEL).params
+    ku = np.asarray(pr["ku"]) * (1 + 0.03 * rng.standard_normal(3))
+    return FONBW(ku, pr["kh"] * (1 + 0.03 * rng.standard_normal()), pr["rho"], pr["sigma"],
+                 pr["n"], min(1.0, pr["lam1"] + 0.03 * rng.standard_normal()),
+                 min(1.0, pr["lam2"] + 0.03 * rng.standard_normal()))
+
+
+def _mid_drive_layout(seed, share, tr_in, va_in):
+    """Which records start mid-drive, and where: ``{"train": (i, start) or None, "validate": ...}``.
+
+    With probability `share` one validation record, one training record or
+    one of each (a third each) starts within :data:`MID_START` of its drive.
+    Drawn from its own stream so the rest of the scenario does not move.
+    """
+    rng = np.random.default_rng([seed, 2026, 2])
+    out = {"train": None, "validate": None}
+    if not share or rng.random() >= share:
+        return out
+    which = ("train", "validate", "both")[int(rng.integers(3))]
+    for key, ins in (("train", tr_in), ("validate", va_in)):
+        i = int(rng.integers(len(ins)))
+        start = int(rng.uniform(*MID_START) * ins[i][1].size)
+        if which in (key, "both"):
+            out[key] = (i, start)
+    return out
+
+
+def _targets(kind, rng, pool):
+    """Effect names and target magnitudes [noise stds] of a scenario of `kind`."""
+    if kind == "null":
+        return [], []
+    if kind == "single":
+        return [str(rng.choice(pool))], [10 ** rng.uniform(math.log10(2), 2)]
+    if kind == "pair":
+        names = [str(n) for n in rng.choice(pool, 2, replace=False)]
+        return names, list(10 ** rng.uniform(math.log10(3), math.log10(60), 2))
+    if kind == "outside":
+        return ["hum"], [10 ** rng.uniform(math.log10(3), math.log10(50))]
+    return [str(rng.choice(pool))], [10 ** rng.uniform(-1, math.log10(0.4))]
+
+
+def _core_params(core):
+    if isinstance(core, gap_cores.Core):
+        return core.family, core.params
+    p = core.params
+    return "fonbw", {k: (list(map(float, np.atleast_1d(v))) if k == "ku" else v) for k, v in p.items()}
+
+
+def draw_scenario(seed, kind=None, scale=1.0, fs=FS, family=None, core=None, mid_drive=0.0, pool=None):
     """A random blind scenario.
 
     Parameters
@@ -285,42 +306,64 @@ def draw_scenario(seed, kind=None, scale=1.0, fs=FS):
     seed : int
     kind : {"null", "single", "pair", "outside", "below"}, optional
         Drawn (15/45/20/10/10 %) when None.
+    scale : float
+        Stretches every record's duration.
+    fs : float
+        Sampling frequency [Hz].
+    family : str, optional
+        Core family of :data:`gap_cores.FAMILIES`, drawn with
+        :func:`gap_cores.draw_core` from the seed. None (and no `core`)
+        keeps the FONBW draw and effect pool of the fixed-seed tests.
+    core : gap_cores.Core, optional
+        Use this core (the rest of the scenario is drawn as without it).
+    mid_drive : float
+        Probability that a training and/or validation record starts mid-drive.
+    pool : sequence of str, optional
+        Effects single, pair and below scenarios draw from; default
+        :data:`gap_effects_truth.POOL` with a family, the pool without clip
+        without one.
 
     Returns
     -------
-    dict with ``kind``, ``truth`` (Truth), ``injected`` {name: {"params",
-    "magnitude"}}, ``train``, ``validate`` (lists of Record).
+    dict
+        ``kind``, ``family``, ``core_params``, ``truth`` (Truth), ``injected``
+        {name: {"params", "magnitude"}}, ``train``, ``validate`` (lists of
+        Record), ``train_drives``, ``validate_drives`` (lists of
+        ``(name, u_full, start)``: the drive each record is cut from),
+        ``starts_at_rest``, ``mid_drive`` and ``noise_std``.
     """
     rng = np.random.default_rng([seed, 2026])
     if kind is None:
         kind = rng.choice(KINDS, p=KIND_P)
-    base = load_model(DEFAULT_MODEL)
-    pr = base.params
-    ku = np.asarray(pr["ku"]) * (1 + 0.03 * rng.standard_normal(3))
-    hyst = FONBW(ku, pr["kh"] * (1 + 0.03 * rng.standard_normal()), pr["rho"], pr["sigma"],
-                 pr["n"], min(1.0, pr["lam1"] + 0.03 * rng.standard_normal()),
-                 min(1.0, pr["lam2"] + 0.03 * rng.standard_normal()))
+    hyst = _legacy_fonbw(rng)  # always drawn: the rest of the stream stays that of the fixed-seed tests
+    if core is not None:
+        hyst = core
+    elif family is not None:
+        hyst = gap_cores.draw_core(family, np.random.default_rng([seed, 2026, 1]))
+    if pool is None:
+        pool = LEGACY_POOL if family is None and core is None else POOL
     noise = float(10 ** rng.uniform(-2, math.log10(0.03)))
     truth = Truth(hyst, {}, noise, fs, seed=int(rng.integers(1 << 30)))
     tr_in, va_in = default_experiments(fs, scale)
-    lib = [e for e in TRUTH_EFFECTS if e != "hum"]
-    if kind == "null":
-        names, targets = [], []
-    elif kind == "single":
-        names, targets = [str(rng.choice(lib))], [10 ** rng.uniform(math.log10(2), 2)]
-    elif kind == "pair":
-        names = [str(n) for n in rng.choice(lib, 2, replace=False)]
-        targets = list(10 ** rng.uniform(math.log10(3), math.log10(60), 2))
-    elif kind == "outside":
-        names, targets = ["hum"], [10 ** rng.uniform(math.log10(3), math.log10(50))]
-    else:
-        names, targets = [str(rng.choice(lib))], [10 ** rng.uniform(-1, math.log10(0.4))]
+    layout = _mid_drive_layout(seed, mid_drive, tr_in, va_in)
+    drives = {}
+    for key, ins in (("train", tr_in), ("validate", va_in)):
+        cut = layout[key]
+        drives[key] = [(n, u, cut[1] if cut and cut[0] == i else 0) for i, (n, u) in enumerate(ins)]
     injected = {}
-    for n, m in zip(names, targets):
-        p, got = calibrate(truth, va_in, n, m, rng)
+    for n, m in zip(*_targets(kind, rng, pool)):
+        p, got = calibrate(truth, drives["validate"], n, m, rng)
         injected[n] = {"params": p, "magnitude": got}
-    truth.effects = {n: v["params"] for n, v in injected.items()}
-    train = [truth.record(u, name, i) for i, (name, u) in enumerate(tr_in)]
-    val = [truth.record(u, name, 50 + i) for i, (name, u) in enumerate(va_in)]
-    return {"kind": str(kind), "truth": truth, "injected": injected, "train": train, "validate": val,
-            "noise_std": noise}
+    truth.effects = {n: {k: x for k, x in v["params"].items() if k != "share"} for n, v in injected.items()}
+    recs = {}
+    for key, off in (("train", 0), ("validate", 50)):
+        recs[key] = []
+        for i, item in enumerate(drives[key]):
+            name, h, u = split_drive(item)
+            recs[key].append(truth.record(u, name, off + i, history=h))
+    fam, params = _core_params(hyst)
+    return {"kind": str(kind), "family": fam, "core_params": params, "truth": truth, "injected": injected,
+            "train": recs["train"], "validate": recs["validate"], "train_drives": drives["train"],
+            "validate_drives": drives["validate"], "noise_std": noise,
+            "starts_at_rest": layout["train"] is None and layout["validate"] is None,
+            "mid_drive": {k: (list(v) if v else None) for k, v in layout.items()}}
