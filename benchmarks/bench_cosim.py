@@ -16,7 +16,7 @@ tracking error (the masters must agree to round-off).  The load average is
 printed too: on the shared 2-core machine other jobs change the absolute
 numbers; the ratios measured side by side are the meaningful part.
 
-Target (issue 6): fmpy master real-time factor >= 1.
+Target: fmpy master real-time factor >= 1.
 """
 from __future__ import annotations
 
@@ -32,11 +32,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 RUN = r'''
 import json, sys
-from fonbw.cosim import run_cosim
+from fonbw.loop import run_cosim
 master, mode, plant, T, fmu_dir = sys.argv[1], sys.argv[2], sys.argv[3], float(sys.argv[4]), sys.argv[5]
 run_cosim("sine5", mode, master, T=0.01, plant=plant, fmu_dir=fmu_dir)  # warm-up
 r = run_cosim("sine5", mode, master, T=T, plant=plant, fmu_dir=fmu_dir)
-print(json.dumps({k: r[k] for k in ("wall_s", "cpu_s", "setup_s", "rtf", "steps", "rms_error", "error")}))
+print(json.dumps({k: getattr(r, k) for k in ("wall_s", "cpu_s", "setup_s", "rtf", "steps", "rms_error", "error")}))
 '''
 
 
@@ -49,7 +49,7 @@ def main(argv=None):
     ap.add_argument("--fmu-dir", default=None, help="prebuilt/reused FMUs (default: build in a tmp dir)")
     a = ap.parse_args(argv)
 
-    from fonbw.cosim import build_fmus
+    from fonbw.loop import build_fmus
 
     with tempfile.TemporaryDirectory(prefix="bench_cosim_") as tmp:
         fmu_dir = a.fmu_dir or tmp

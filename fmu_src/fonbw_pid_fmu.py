@@ -91,7 +91,7 @@ class FonbwPID(FonbwSlaveBase):
         self._default_experiment()
 
     def _build(self):
-        from fonbw.cosim import LoopController  # bundled copy
+        from fonbw.loop.controller import LoopController  # bundled copy
         ctrl = LoopController(dict(kp=self.kp, ki=self.ki, kd=self.kd, Tf=self.Tf, Tt=self.Tt,
                                    u_min=self.u_min, u_max=self.u_max, dt=self.dt,
                                    integrator=self.integrator, anti_windup=self.anti_windup))

@@ -101,7 +101,7 @@ def _stage_fmus(model, out):
 
 
 def _stage_cosim(model, out, b):
-    from .cosim import ff_fb_study
+    from .loop import ff_fb_study
 
     d = os.path.join(out, "cosim")
     rows = ff_fb_study(out_dir=d, master="fmpy", trajectories=("sine5",), plants=("dynamics+creep",),

@@ -1,4 +1,4 @@
-"""Closed-loop co-simulation (issue 6): three masters, one loop.
+"""Closed-loop co-simulation: three masters, one loop.
 
 * The reference master (library steppers, in this process) is checked against
   independent references: the model's batch simulation of the actuator input
@@ -27,20 +27,22 @@ import numpy as np
 import pytest
 
 import fonbw
-from fonbw import cosim
+from fonbw import loop
+from fonbw.cli import main as fonbw_main
+from fonbw.data import DEFAULT_MODEL
 from fonbw.plant import mechanics
 
 DT = 1e-4
 T = 0.1                      # 1000 steps per run
 PLANTS = ("none", "dynamics+creep")
 REL = 1e-9
-CASES = [dict(scenario="sine5", mode=m, plant=p, T=T) for p in PLANTS for m in cosim.MODES]
+CASES = [dict(scenario="sine5", mode=m, plant=p, T=T) for p in PLANTS for m in loop.MODES]
 TRACE_KEYS = ("t", "r", "u", "y", "e")
 
 DRIVER = r'''
 import json, sys
 import numpy as np
-from fonbw.cosim import run_cosim
+from fonbw.loop import run_cosim
 master, fmu_dir, cases_file, out = sys.argv[1:5]
 cases = json.load(open(cases_file))
 arrays, report = {}, []
@@ -55,9 +57,9 @@ for i, kw in enumerate(cases):
         except Exception as e:
             entry[tag] = {"exception": f"{type(e).__name__}: {e}"}
             continue
-        entry[tag] = {k: r[k] for k in keys}
+        entry[tag] = {k: getattr(r, k) for k in keys}
         for k in ("t", "r", "u", "y", "e"):
-            arrays[f"{i}_{tag}_{k}"] = r["trace"][k]
+            arrays[f"{i}_{tag}_{k}"] = getattr(r, k)
     report.append(entry)
 np.savez(out + ".npz", **arrays)
 json.dump(report, open(out + ".json", "w"), indent=1)
@@ -68,7 +70,7 @@ json.dump(report, open(out + ".json", "w"), indent=1)
 def fmu_dir(tmp_path_factory):
     d = tmp_path_factory.mktemp("cosim_fmus")
     for pl in PLANTS:
-        cosim.build_fmus(d, None if pl == "none" else pl)
+        loop.build_fmus(d, None if pl == "none" else pl)
     return d
 
 
@@ -107,7 +109,7 @@ def libcosim_runs(fmu_dir):
 
 @pytest.fixture(scope="module")
 def reference_runs():
-    return [cosim.run_cosim(master="reference", **kw) for kw in CASES]
+    return [loop.run_cosim(master="reference", **kw) for kw in CASES]
 
 
 def _assert_same(pair, what):
@@ -140,8 +142,8 @@ def test_libcosim_master_agrees_with_reference(libcosim_runs, i):
 def test_actuator_in_the_loop_is_the_model(reference_runs, i):
     # Without a plant the measured output is the hysteresis block's: the
     # model's batch simulation of the voltage the loop applied, exactly.
-    tr = reference_runs[i]["trace"]
-    model = fonbw.load_model(cosim.DEFAULT_MODEL)
+    tr = reference_runs[i].trace
+    model = fonbw.load_model(DEFAULT_MODEL)
     y = model.simulate(tr["u"], DT)
     assert np.max(np.abs(y - tr["y"])) <= 1e-12 * np.max(np.abs(y))
 
@@ -156,17 +158,17 @@ def test_feedforward_with_exact_model_tracks():
     # chain reproduces H_d to the compensator's solver tolerance (the loop
     # feeds it the reference one step ahead, so the pipeline adds no latency).
     m = fonbw.FONBW(**INVERTIBLE)
-    r = cosim.run_cosim("sine5", "ff", "reference", T=0.5, models={"compensator": m})
-    assert np.ptp(r["trace"]["u"]) > 50.0  # V
-    assert r["diagnostics"]["compensator"] == {"saturated_samples": 0, "unconverged_samples": 0}
-    assert r["max_error"] <= 1e-4, r["max_error"]  # um, of a 10 um stroke
+    r = loop.run_cosim("sine5", "ff", "reference", T=0.5, models={"compensator": m})
+    assert np.ptp(r.u) > 50.0  # V
+    assert r.diagnostics["compensator"] == {"saturated_samples": 0, "unconverged_samples": 0}
+    assert r.max_error <= 1e-4, r.max_error  # um, of a 10 um stroke
     # with dynamics and creep the feedforward leaves an error that feedback removes
-    ff = cosim.run_cosim("sine5", "ff", "reference", T=0.5, plant="dynamics+creep",
+    ff = loop.run_cosim("sine5", "ff", "reference", T=0.5, plant="dynamics+creep",
                          models={"compensator": m})
-    both = cosim.run_cosim("sine5", "ff+fb", "reference", T=0.5, plant="dynamics+creep",
+    both = loop.run_cosim("sine5", "ff+fb", "reference", T=0.5, plant="dynamics+creep",
                            models={"compensator": m})
-    assert ff["rms_error"] > 0.03 and both["rms_error"] < 0.05 * ff["rms_error"], (
-        ff["rms_error"], both["rms_error"])
+    assert ff.rms_error > 0.03 and both.rms_error < 0.05 * ff.rms_error, (
+        ff.rms_error, both.rms_error)
 
 
 def test_feedforward_with_the_default_model_is_reported(reference_runs):
@@ -177,23 +179,23 @@ def test_feedforward_with_the_default_model_is_reported(reference_runs):
     # must still do its job around the idle feedforward.
     rr = {(c["mode"], c["plant"]): r for c, r in zip(CASES, reference_runs)}
     ff = rr[("ff", "none")]
-    sat = ff["diagnostics"]["compensator"]["saturated_samples"]
-    assert sat >= 0.99 * ff["steps"], ff["diagnostics"]
-    assert ff["rms_error"] > 0.5 * np.ptp(ff["trace"]["r"]) / 2  # it really did not track
+    sat = ff.diagnostics["compensator"]["saturated_samples"]
+    assert sat >= 0.99 * ff.steps, ff.diagnostics
+    assert ff.rms_error > 0.5 * np.ptp(ff.r) / 2  # it really did not track
     for pl in PLANTS:
         both, fb = rr[("ff+fb", pl)], rr[("fb", pl)]
-        assert abs(both["rms_error"] - fb["rms_error"]) <= 1e-3 * fb["rms_error"]
-        assert both["rms_error"] < 0.5 * rr[("open", pl)]["rms_error"]
+        assert abs(both.rms_error - fb.rms_error) <= 1e-3 * fb.rms_error
+        assert both.rms_error < 0.5 * rr[("open", pl)].rms_error
 
 
 def test_open_loop_input_is_scaled_reference(reference_runs):
-    tr = reference_runs[CASES.index(dict(scenario="sine5", mode="open", plant="none", T=T))]["trace"]
-    k_lin = cosim.linear_gain(fonbw.load_model(cosim.DEFAULT_MODEL), DT)
+    tr = reference_runs[CASES.index(dict(scenario="sine5", mode="open", plant="none", T=T))].trace
+    k_lin = loop.linear_gain(fonbw.load_model(DEFAULT_MODEL), DT)
     np.testing.assert_array_equal(tr["u"], tr["r"] / k_lin)
 
 
 def test_feedback_reduces_the_hysteresis_error(reference_runs):
-    rms = {(c["mode"], c["plant"]): r["rms_error"] for c, r in zip(CASES, reference_runs)}
+    rms = {(c["mode"], c["plant"]): r.rms_error for c, r in zip(CASES, reference_runs)}
     for pl in PLANTS:
         assert rms[("fb", pl)] < 0.5 * rms[("open", pl)], rms
 
@@ -202,15 +204,15 @@ def test_feedback_reduces_the_hysteresis_error(reference_runs):
 def test_linear_loop_matches_python_control(scenario):
     # Known linear plant, no hysteresis, controller without limits: the
     # co-simulated loop is z^-1 K(z) P(z) closed by unit feedback (the
-    # one-step alignment of the controller's inputs, module docstring).
+    # one-step alignment of the controller's inputs, fonbw.loop's docstring).
     P = ct.ss(0.15 * mechanics())
-    spec = cosim.controller_spec(0.5, 3000.0, 0.0, DT, None, None)
-    r = cosim.run_cosim(scenario, "fb", "reference", T=0.2, plant=P, hysteresis=False,
+    spec = loop.controller_spec(0.5, 3000.0, 0.0, DT, None, None)
+    r = loop.run_cosim(scenario, "fb", "reference", T=0.2, plant=P, hysteresis=False,
                         models={"controller": spec})
-    tr = r["trace"]
-    assert r["error"] is None and r["config"]["blocks"] == ["ctrl", "plant"]
+    tr = r.trace
+    assert r.error is None and r.config["blocks"] == ["ctrl", "plant"]
     Pd = ct.c2d(ct.ss(P.A, P.B, P.C, P.D), DT)
-    K = cosim.LoopController(spec).pid.to_tf()
+    K = loop.LoopController(spec).pid.to_tf()
     z1 = ct.tf([1.0], [1.0, 0.0], DT)
     y = ct.forced_response(ct.feedback(z1 * K * Pd, 1), T=tr["t"], U=tr["r"]).outputs
     assert np.max(np.abs(y - tr["y"])) <= 1e-9 * np.max(np.abs(y))
@@ -218,9 +220,9 @@ def test_linear_loop_matches_python_control(scenario):
 
 
 def test_designed_controller_has_margins():
-    k = cosim.linear_gain(fonbw.load_model(cosim.DEFAULT_MODEL), DT)
+    k = loop.linear_gain(fonbw.load_model(DEFAULT_MODEL), DT)
     for pl in ("none", "dynamics"):
-        d = cosim.design_controller(k, pl, DT)["design"]
+        d = loop.design_controller(k, pl, DT)["design"]
         assert d["gain_margin"] >= 2.0 and d["phase_margin_deg"] >= 45.0, (pl, d)
 
 
@@ -237,9 +239,9 @@ def test_refused_step_stops_fmpy_loop_and_keeps_trace(fmpy_runs):
 
 
 def test_refused_step_stops_reference_loop_the_same_way():
-    r = cosim.run_cosim("sine5", "fb", "reference", T=0.01 + 0.5 * DT)
-    assert r["steps"] == 100 and len(r["trace"]["y"]) == 100
-    assert "step 100" in r["error"] and "not a whole multiple" in r["error"]
+    r = loop.run_cosim("sine5", "fb", "reference", T=0.01 + 0.5 * DT)
+    assert r.steps == 100 and len(r.y) == 100
+    assert "step 100" in r.error and "not a whole multiple" in r.error
 
 
 def test_refused_step_stops_libcosim_loop(libcosim_runs):
@@ -251,23 +253,23 @@ def test_refused_step_stops_libcosim_loop(libcosim_runs):
 
 def test_bad_arguments_are_refused():
     with pytest.raises(ValueError, match="mode"):
-        cosim.run_cosim("sine5", "bogus")
+        loop.run_cosim("sine5", "bogus")
     with pytest.raises(ValueError, match="scenario"):
-        cosim.run_cosim("nope", "fb")
+        loop.run_cosim("nope", "fb")
     with pytest.raises(ValueError, match="master"):
-        cosim.run_cosim("sine5", "fb", "simulink")
+        loop.run_cosim("sine5", "fb", "simulink")
     with pytest.raises(ValueError, match="plant"):
-        cosim.run_cosim("sine5", "fb", plant="wobbly")
+        loop.run_cosim("sine5", "fb", plant="wobbly")
 
 
 def test_cli_writes_json_and_csv(tmp_path, capsys):
     j, c = tmp_path / "r.json", tmp_path / "tr.csv"
-    rc = cosim.cosim_main(["--scenario", "sine5", "--mode", "fb", "--T", "0.02",
-                           "--json", str(j), "--csv", str(c)])
+    rc = fonbw_main(["cosim", "--scenario", "sine5", "--mode", "fb", "--T", "0.02",
+                     "--json", str(j), "--csv", str(c)])
     assert rc == 0
     d = json.loads(j.read_text())
     assert d["steps"] == 200 and d["rms_error"] > 0
     rec = fonbw.read_record(c, need=("u", "y"))
     assert len(rec.t) == 200
-    assert cosim.cosim_main(["--scenario", "sine5", "--mode", "fb", "--T", "-1"]) == 2
+    assert fonbw_main(["cosim", "--scenario", "sine5", "--mode", "fb", "--T", "-1"]) == 2
     assert "fonbw cosim:" in capsys.readouterr().err
