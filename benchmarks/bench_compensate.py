@@ -27,6 +27,7 @@ import numpy as np
 
 import fonbw
 import importlib
+from fonbw.signals import trajectory_5hz
 
 C = importlib.import_module("fonbw.compensate")  # fonbw.compensate is the function
 
@@ -55,7 +56,7 @@ def main(argv=None):
     ap.add_argument("--steps", type=int, default=20000, help="samples (default 2 s at 10 kHz)")
     ap.add_argument("--repeat", type=int, default=3)
     a = ap.parse_args(argv)
-    Hd = C.trajectory_5hz(np.arange(a.steps) * DT)
+    Hd = trajectory_5hz(np.arange(a.steps) * DT)
     print(f"load average {os.getloadavg()[0]:.2f}; {a.steps} samples at {1 / DT:.0f} Hz, "
           f"median of {a.repeat}")
     print(f"{'model':<14} {'compensate':>11} {'simulate':>9} {'ratio':>6} {'evals/sample':>12} "

@@ -78,14 +78,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 
 import numba as nb
 import numpy as np
 
 from . import hysteresis as _hy
-from .paper import PAPER_TABLE4, U_RANGE
-from .signals import TRAJECTORIES, trajectory_5hz, trajectory_multi  # noqa: F401
+from .paper import U_RANGE
 
 __all__ = [
     "compensate",
@@ -93,13 +91,6 @@ __all__ = [
     "Compensator",
     "CompensationResult",
     "compensate_file",
-    "trajectory_5hz",
-    "trajectory_multi",
-    "TRAJECTORIES",
-    "table4",
-    "reproduce_table4",
-    "format_table4",
-    "PAPER_TABLE4",
     "OK",
     "SAT_LOW",
     "SAT_HIGH",
@@ -764,178 +755,3 @@ def compensate_file(model_path, traj_path, out_path, *, limits=DEFAULT_LIMITS, e
     write_csv(out_path, {"t": rec.t, "u": res.u, "Hd": res.Hd, "y_model": res.y_model,
                          "status": res.status.astype(float)})
     return res
-
-
-def _rms(x):
-    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else math.nan
-
-
-def table4(bench, models, dt=None, out_dir=None, *, T=2.0, limits=DEFAULT_LIMITS,
-           explicit=False, ideal=True, trajectories=None) -> list[dict]:
-    """Reproduce Table 4: feedforward tracking of the two trajectories on a bench.
-
-    Each model's compensator (:func:`compensate`, from rest) turns H_d into a
-    voltage, the bench runs it (from rest, measured output: sensor, noise and
-    ADC included), and the error is measured − desired over the whole record.
-
-    Parameters
-    ----------
-    bench : fonbw.bench.Bench
-        The plant. Anything with ``run(u) -> y`` [µm] and ``dt`` [s] works.
-    models : mapping of str to model or (model, dict)
-        Compensator name (e.g. "FONBW", "CBW", "Zhu") -> identified model,
-        optionally with keyword options of :func:`compensate` for it (e.g.
-        ``(zhu_model, {"form": "discrete"})``). A Zhu2016 model compensates
-        in the form of eq. (22) unless told otherwise (``form="eq22"``, the
-        compensator the paper compares; the per-step inversion of its
-        discrete mechanics is greedy and can lock on a voltage limit).
-    dt : float, optional
-        Step [s]; must equal ``bench.dt`` (default).
-    out_dir : path, optional
-        Where to write ``table4.csv`` and one PNG per trajectory (tracking
-        and error of every compensator).
-    T : float
-        Duration of each trajectory [s].
-    limits, explicit
-        Passed to :func:`compensate`.
-    ideal : bool
-        Also run each compensator on its own model as the plant (rows with
-        ``plant="model"``): tracks to the solver tolerance unless saturated.
-    trajectories : mapping, optional
-        name -> function of t [s] giving H_d [µm]; default :data:`TRAJECTORIES`.
-
-    Returns
-    -------
-    list of dict
-        One row per (compensator, trajectory[, plant]) with ``compensator``,
-        ``trajectory``, ``plant`` ("bench" or "model"), ``rms_error`` [µm],
-        ``max_error`` [µm], ``rms_error_solved`` [µm] (over the samples whose
-        equation was solved, i.e. neither saturated nor unconverged),
-        ``rms_input`` [V], ``saturated`` and ``not_converged`` (sample
-        counts), ``samples``.
-    """
-    bdt = float(getattr(bench, "dt"))
-    dt = bdt if dt is None else _hy._dt(dt)
-    if abs(dt - bdt) > 1e-12 * bdt:
-        raise ValueError(f"dt = {dt!r} s differs from the bench's sampling step {bdt!r} s")
-    if not models:
-        raise ValueError("models must name at least one model to compensate with")
-    specs = {}
-    for name, spec in models.items():
-        m, opts = spec if isinstance(spec, tuple) else (spec, {})
-        _check_model(m)
-        # Table 4 compares the paper's compensators: eq. (22) for the Zhu model
-        form = "eq22" if isinstance(m, _hy.Zhu2016) else "discrete"
-        specs[name] = (m, {"limits": limits, "explicit": explicit, "form": form, **opts})
-    T = float(T)
-    if not (math.isfinite(T) and T > 0):
-        raise ValueError(f"T must be a positive duration [s], got {T!r}")
-    trajs = dict(TRAJECTORIES if trajectories is None else trajectories)
-    t = np.arange(int(round(T / dt))) * dt
-    rows, traces = [], {}
-    for tname, fn in trajs.items():
-        Hd = np.asarray(fn(t), dtype=float)
-        for mname, (m, opts) in specs.items():
-            res = compensate(m, Hd, dt, **opts)
-            y = np.asarray(bench.run(res.u), dtype=float)
-            traces[tname, mname] = (Hd, y)
-            plants = [("bench", y)] + ([("model", res.y_model)] if ideal else [])
-            for pname, yp in plants:
-                e = yp - Hd
-                ok = res.status == OK
-                rows.append({"compensator": mname, "trajectory": tname, "plant": pname,
-                             "rms_error": _rms(e), "max_error": float(np.max(np.abs(e))),
-                             "rms_error_solved": _rms(e[ok]),
-                             "rms_input": _rms(res.u),
-                             "saturated": int(np.count_nonzero(res.saturated)),
-                             "not_converged": int(res.unconverged_samples.size),
-                             "samples": int(len(Hd))})
-    if out_dir is not None:
-        _write_table4(out_dir, rows, traces, t, list(trajs), list(specs))
-    return rows
-
-
-def _write_table4(out_dir, rows, traces, t, tnames, mnames):
-    import csv
-
-    from .io import atomic_open
-
-    os.makedirs(out_dir, exist_ok=True)
-    keys = list(rows[0])
-    with atomic_open(os.path.join(out_dir, "table4.csv"), "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=keys)
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in r.items()})
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    for tname in tnames:
-        fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
-        Hd = traces[tname, mnames[0]][0]
-        # desired on top; measured traces thin and translucent, so a
-        # chattering compensator does not hide the others
-        a1.plot(t, Hd, "k--", lw=1.2, label="desired", zorder=10)
-        for m in mnames:
-            y = traces[tname, m][1]
-            a1.plot(t, y, lw=0.7, alpha=0.8, label=f"{m}-based")
-            a2.plot(t, y - Hd, lw=0.7, alpha=0.8, label=f"{m}: RMS {_rms(y - Hd):.3f} µm")
-        a1.set_ylabel("displacement [µm]")
-        a1.set_title(f"Feedforward compensation on the bench, {tname} trajectory")
-        a1.legend(loc="upper right", fontsize=8)
-        a2.set_ylabel("tracking error [µm]")
-        a2.set_xlabel("t [s]")
-        a2.legend(loc="upper right", fontsize=8)
-        fig.tight_layout()
-        slug = "".join(ch if ch.isalnum() else "_" for ch in tname.lower()).strip("_")
-        path = os.path.join(out_dir, f"table4_{slug}.png")
-        with atomic_open(path, "wb") as fh:
-            fig.savefig(fh, format="png", dpi=110)
-        plt.close(fig)
-
-
-def format_table4(rows, paper=True) -> str:
-    """Plain-text Table 4 (bench rows; with the paper's numbers beside them)."""
-    ref = {(c, tr): (e, u) for c, tr, e, u in PAPER_TABLE4}
-    lines = [f"{'compensator':<12} {'trajectory':<12} {'RMS error':>10} {'RMS input':>10} "
-             f"{'saturated':>9}" + ("   paper: error, input" if paper else "")]
-    for r in rows:
-        if r["plant"] != "bench":
-            continue
-        line = (f"{r['compensator']:<12} {r['trajectory']:<12} {r['rms_error']:>7.3f} µm "
-                f"{r['rms_input']:>8.2f} V {r['saturated']:>9d}")
-        if paper and (r["compensator"], r["trajectory"]) in ref:
-            e, u = ref[r["compensator"], r["trajectory"]]
-            line += f"   {e:.2f} µm, {u:.2f} V"
-        lines.append(line)
-    return "\n".join(lines)
-
-
-def reproduce_table4(out_dir=None, *, seed=0, max_evals=3000, T=2.0, models=None,
-                     workers=None, progress=False) -> list[dict]:
-    """Table 4 end to end on the default virtual bench.
-
-    Identifies FONBW, CBW and the Zhu model on the bench's eq. (19) record
-    (20 s at 10 kHz, :func:`fonbw.identify`, same seed for all) unless
-    ``models`` is given, then runs :func:`table4`. With ``out_dir`` also
-    writes the identified models as ``model_<name>.json``.
-    """
-    from .bench import Bench
-    from .signals import eq19_input
-
-    bench = Bench(seed=seed)
-    if models is None:
-        from .identify import identify
-
-        rec = bench.record(eq19_input(bench.fs)[1], "eq19")
-        models = {}
-        for name, kind in (("FONBW", "fonbw"), ("CBW", "cbw"), ("Zhu", "zhu")):
-            models[name] = identify(rec, kind, seed=seed, max_evals=max_evals, workers=workers,
-                                    progress=progress).model
-    if out_dir is not None:
-        os.makedirs(out_dir, exist_ok=True)
-        for name, m in models.items():
-            m.save(os.path.join(out_dir, f"model_{name.lower()}.json"))
-    return table4(bench, models, bench.dt, out_dir, T=T)

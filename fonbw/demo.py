@@ -75,7 +75,7 @@ def _stage_identify(bench, out, seed, b, progress):
 
 
 def _stage_compensate(bench, models, out, b):
-    from .compensate import table4
+    from .reproduce import table4
 
     named = {"FONBW": models["fonbw"], "CBW": models["cbw"], "Zhu": models["zhu"]}
     d = os.path.join(out, "compensate")

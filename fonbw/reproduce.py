@@ -1,5 +1,6 @@
 """The paper's identification and verification study (Tables 1–3, Figs. 8–10)
-recomputed on the virtual bench (:mod:`fonbw.bench`).
+and its feedforward compensation study (Table 4) recomputed on the virtual
+bench (:mod:`fonbw.bench`).
 
 FONBW, CBW and the Zhu et al. model are identified on the bench's eq.-19
 record with :func:`fonbw.identify`, then validated on the sines
@@ -17,12 +18,15 @@ import time
 
 import numpy as np
 
+from . import hysteresis as _hy
 from .bench import Bench
-from .paper import PAPER_TABLE2, SINE_FREQS
-from .signals import eq19_input, sine_input
+from .compensate import DEFAULT_LIMITS, OK, _check_model, compensate
+from .paper import PAPER_TABLE2, PAPER_TABLE4, SINE_FREQS
+from .signals import TRAJECTORIES, eq19_input, sine_input
 from .io import Record, atomic_open
 
-__all__ = ["decimate", "identify_models", "table1", "table2", "table3", "reproduce", "KIND_LABELS"]
+__all__ = ["decimate", "identify_models", "table1", "table2", "table3", "reproduce", "KIND_LABELS",
+           "table4", "format_table4", "reproduce_table4"]
 
 KIND_LABELS = {"fonbw": "FONBW", "cbw": "CBW", "zhu": "Zhu et al. (eq. 20)", "nbw": "asymmetric NBW"}
 
@@ -246,3 +250,188 @@ def tables_markdown(res) -> str:
         lines.append(f"| {KIND_LABELS.get(k, k)} | " + " | ".join(f"{v:.2f} %" for v in vals) + " |")
     lines += ["", res["ordering"], ""]
     return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------
+# Table 4: feedforward compensation on the bench
+
+def _rms(x):
+    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else math.nan
+
+
+def _table4_specs(models, limits, explicit):
+    """name -> (model, keyword options of :func:`fonbw.compensate`)."""
+    specs = {}
+    for name, spec in models.items():
+        m, opts = spec if isinstance(spec, tuple) else (spec, {})
+        _check_model(m)
+        # Table 4 compares the paper's compensators: eq. (22) for the Zhu model
+        form = "eq22" if isinstance(m, _hy.Zhu2016) else "discrete"
+        specs[name] = (m, {"limits": limits, "explicit": explicit, "form": form, **opts})
+    return specs
+
+
+def _table4_row(mname, tname, pname, yp, Hd, res):
+    """One row of :func:`table4`: output `yp` [µm] of plant `pname` driven by
+    the compensation `res` of `Hd` [µm]."""
+    e = yp - Hd
+    ok = res.status == OK
+    return {"compensator": mname, "trajectory": tname, "plant": pname,
+            "rms_error": _rms(e), "max_error": float(np.max(np.abs(e))),
+            "rms_error_solved": _rms(e[ok]),
+            "rms_input": _rms(res.u),
+            "saturated": int(np.count_nonzero(res.saturated)),
+            "not_converged": int(res.unconverged_samples.size),
+            "samples": int(len(Hd))}
+
+
+def table4(bench, models, dt=None, out_dir=None, *, T=2.0, limits=DEFAULT_LIMITS,
+           explicit=False, ideal=True, trajectories=None) -> list[dict]:
+    """Reproduce Table 4: feedforward tracking of the two trajectories on a bench.
+
+    Each model's compensator (:func:`fonbw.compensate`, from rest) turns H_d into a
+    voltage, the bench runs it (from rest, measured output: sensor, noise and
+    ADC included), and the error is measured − desired over the whole record.
+
+    Parameters
+    ----------
+    bench : fonbw.bench.Bench
+        The plant. Anything with ``run(u) -> y`` [µm] and ``dt`` [s] works.
+    models : mapping of str to model or (model, dict)
+        Compensator name (e.g. "FONBW", "CBW", "Zhu") -> identified model,
+        optionally with keyword options of :func:`fonbw.compensate` for it (e.g.
+        ``(zhu_model, {"form": "discrete"})``). A Zhu2016 model compensates
+        in the form of eq. (22) unless told otherwise (``form="eq22"``, the
+        compensator the paper compares; the per-step inversion of its
+        discrete mechanics is greedy and can lock on a voltage limit).
+    dt : float, optional
+        Step [s]; must equal ``bench.dt`` (default).
+    out_dir : path, optional
+        Where to write ``table4.csv`` and one PNG per trajectory (tracking
+        and error of every compensator).
+    T : float
+        Duration of each trajectory [s].
+    limits, explicit
+        Passed to :func:`fonbw.compensate`.
+    ideal : bool
+        Also run each compensator on its own model as the plant (rows with
+        ``plant="model"``): tracks to the solver tolerance unless saturated.
+    trajectories : mapping, optional
+        name -> function of t [s] giving H_d [µm]; default
+        :data:`fonbw.signals.TRAJECTORIES`.
+
+    Returns
+    -------
+    list of dict
+        One row per (compensator, trajectory[, plant]) with ``compensator``,
+        ``trajectory``, ``plant`` ("bench" or "model"), ``rms_error`` [µm],
+        ``max_error`` [µm], ``rms_error_solved`` [µm] (over the samples whose
+        equation was solved, i.e. neither saturated nor unconverged),
+        ``rms_input`` [V], ``saturated`` and ``not_converged`` (sample
+        counts), ``samples``.
+    """
+    bdt = float(getattr(bench, "dt"))
+    dt = bdt if dt is None else _hy._dt(dt)
+    if abs(dt - bdt) > 1e-12 * bdt:
+        raise ValueError(f"dt = {dt!r} s differs from the bench's sampling step {bdt!r} s")
+    if not models:
+        raise ValueError("models must name at least one model to compensate with")
+    specs = _table4_specs(models, limits, explicit)
+    T = float(T)
+    if not (math.isfinite(T) and T > 0):
+        raise ValueError(f"T must be a positive duration [s], got {T!r}")
+    trajs = dict(TRAJECTORIES if trajectories is None else trajectories)
+    t = np.arange(int(round(T / dt))) * dt
+    rows, traces = [], {}
+    for tname, fn in trajs.items():
+        Hd = np.asarray(fn(t), dtype=float)
+        for mname, (m, opts) in specs.items():
+            res = compensate(m, Hd, dt, **opts)
+            y = np.asarray(bench.run(res.u), dtype=float)
+            traces[tname, mname] = (Hd, y)
+            plants = [("bench", y)] + ([("model", res.y_model)] if ideal else [])
+            rows += [_table4_row(mname, tname, pname, yp, Hd, res) for pname, yp in plants]
+    if out_dir is not None:
+        _write_table4(out_dir, rows, traces, t, list(trajs), list(specs))
+    return rows
+
+
+def _write_table4(out_dir, rows, traces, t, tnames, mnames):
+    import csv
+
+    os.makedirs(out_dir, exist_ok=True)
+    keys = list(rows[0])
+    with atomic_open(os.path.join(out_dir, "table4.csv"), "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=keys)
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in r.items()})
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    for tname in tnames:
+        fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+        Hd = traces[tname, mnames[0]][0]
+        # desired on top; measured traces thin and translucent, so a
+        # chattering compensator does not hide the others
+        a1.plot(t, Hd, "k--", lw=1.2, label="desired", zorder=10)
+        for m in mnames:
+            y = traces[tname, m][1]
+            a1.plot(t, y, lw=0.7, alpha=0.8, label=f"{m}-based")
+            a2.plot(t, y - Hd, lw=0.7, alpha=0.8, label=f"{m}: RMS {_rms(y - Hd):.3f} µm")
+        a1.set_ylabel("displacement [µm]")
+        a1.set_title(f"Feedforward compensation on the bench, {tname} trajectory")
+        a1.legend(loc="upper right", fontsize=8)
+        a2.set_ylabel("tracking error [µm]")
+        a2.set_xlabel("t [s]")
+        a2.legend(loc="upper right", fontsize=8)
+        fig.tight_layout()
+        slug = "".join(ch if ch.isalnum() else "_" for ch in tname.lower()).strip("_")
+        path = os.path.join(out_dir, f"table4_{slug}.png")
+        with atomic_open(path, "wb") as fh:
+            fig.savefig(fh, format="png", dpi=110)
+        plt.close(fig)
+
+
+def format_table4(rows, paper=True) -> str:
+    """Plain-text Table 4 (bench rows; with the paper's numbers beside them)."""
+    ref = {(c, tr): (e, u) for c, tr, e, u in PAPER_TABLE4}
+    lines = [f"{'compensator':<12} {'trajectory':<12} {'RMS error':>10} {'RMS input':>10} "
+             f"{'saturated':>9}" + ("   paper: error, input" if paper else "")]
+    for r in rows:
+        if r["plant"] != "bench":
+            continue
+        line = (f"{r['compensator']:<12} {r['trajectory']:<12} {r['rms_error']:>7.3f} µm "
+                f"{r['rms_input']:>8.2f} V {r['saturated']:>9d}")
+        if paper and (r["compensator"], r["trajectory"]) in ref:
+            e, u = ref[r["compensator"], r["trajectory"]]
+            line += f"   {e:.2f} µm, {u:.2f} V"
+        lines.append(line)
+    return "\n".join(lines)
+
+
+def reproduce_table4(out_dir=None, *, seed=0, max_evals=3000, T=2.0, models=None,
+                     workers=None, progress=False) -> list[dict]:
+    """Table 4 end to end on the default virtual bench.
+
+    Identifies FONBW, CBW and the Zhu model on the bench's eq. (19) record
+    (20 s at 10 kHz, :func:`fonbw.identify`, same seed for all) unless
+    ``models`` is given, then runs :func:`table4`. With ``out_dir`` also
+    writes the identified models as ``model_<name>.json``.
+    """
+    bench = Bench(seed=seed)
+    if models is None:
+        from .identify import identify
+
+        rec = bench.record(eq19_input(bench.fs)[1], "eq19")
+        models = {}
+        for name, kind in (("FONBW", "fonbw"), ("CBW", "cbw"), ("Zhu", "zhu")):
+            models[name] = identify(rec, kind, seed=seed, max_evals=max_evals, workers=workers,
+                                    progress=progress).model
+    if out_dir is not None:
+        os.makedirs(out_dir, exist_ok=True)
+        for name, m in models.items():
+            m.save(os.path.join(out_dir, f"model_{name.lower()}.json"))
+    return table4(bench, models, bench.dt, out_dir, T=T)

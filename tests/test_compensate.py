@@ -1,4 +1,4 @@
-"""Tests of fonbw.compensate (issue 4): the per-step inverse of eqs. (16)-(17), (21), (22).
+"""Tests of fonbw.compensate: the per-step inverse of eqs. (16)-(17), (21), (22).
 
 References are independent of the compiled solver: the models' own
 ``simulate`` (model ∘ compensator = identity), a per-step root find written
@@ -16,13 +16,15 @@ from scipy.optimize import brentq
 import fonbw
 from fonbw.io import read_record, write_csv
 from fonbw.paper import TABLE1_FONBW
+from fonbw.reproduce import format_table4, table4
+from fonbw.signals import trajectory_5hz, trajectory_multi
 
 C = importlib.import_module("fonbw.compensate")  # fonbw.compensate is the function
 
 DT = 1e-4          # s, the paper's 10 kHz
 T = 0.4            # s: two periods of the 5-Hz trajectory
 t = np.arange(int(round(T / DT))) * DT
-TRAJ = {"5hz": C.trajectory_5hz(t), "multi": C.trajectory_multi(t)}
+TRAJ = {"5hz": trajectory_5hz(t), "multi": trajectory_multi(t)}
 
 WN, ZETA = 2 * np.pi * 1500.0, 0.7
 
@@ -215,7 +217,7 @@ def test_table4_on_an_ideal_bench_and_the_plots(tmp_path):
 
     bench = Bench.ideal(seed=0)
     models = {"NBW": MODELS["nbw"](), "CBW": MODELS["cbw"](), "Zhu": zhu()}  # Zhu: eq. (22) form by default
-    rows = C.table4(bench, models, out_dir=tmp_path, T=0.2)
+    rows = table4(bench, models, out_dir=tmp_path, T=0.2)
     assert len(rows) == 3 * 2 * 2
     for r in rows:
         assert r["samples"] == 2000 and r["saturated"] == 0 and r["not_converged"] == 0
@@ -226,17 +228,17 @@ def test_table4_on_an_ideal_bench_and_the_plots(tmp_path):
             assert 1e-3 < r["rms_error"] < 5.0
         assert 10.0 < r["rms_input"] < 120.0
     # the RMS input is the voltage of the compensator, independent of the plant
-    u = C.compensate(models["CBW"], C.trajectory_5hz(np.arange(2000) * DT), DT).u
+    u = C.compensate(models["CBW"], trajectory_5hz(np.arange(2000) * DT), DT).u
     row = next(r for r in rows if r["compensator"] == "CBW" and r["trajectory"] == "5-Hz")
     assert row["rms_input"] == pytest.approx(np.sqrt(np.mean(u**2)), rel=1e-12)
-    uz = C.compensate(zhu(), C.trajectory_5hz(np.arange(2000) * DT), DT, form="eq22").u
+    uz = C.compensate(zhu(), trajectory_5hz(np.arange(2000) * DT), DT, form="eq22").u
     row = next(r for r in rows if r["compensator"] == "Zhu" and r["trajectory"] == "5-Hz")
     assert row["rms_input"] == pytest.approx(np.sqrt(np.mean(uz**2)), rel=1e-12)
     for f in ("table4.csv", "table4_5_hz.png", "table4_multi_freq.png"):
         assert (tmp_path / f).stat().st_size > 0
-    assert "paper" in C.format_table4(rows)
+    assert "paper" in format_table4(rows)
     with pytest.raises(ValueError, match="differs"):
-        C.table4(bench, models, dt=2 * DT)
+        table4(bench, models, dt=2 * DT)
 
 
 def test_zhu_eq22_form_solves_the_force_balance():
