@@ -1,213 +1,271 @@
 """Blind test of the gap diagnosis on the separate truth simulator.
 
 Scenarios are drawn at random with a seed (:func:`gap_truth.draw_scenario`, in
-this folder):
-no effect (null), one effect, two effects, an effect outside the library
+this folder): a hysteresis core of one of four families (:mod:`gap_cores`:
+fonbw, preisach, pi, rate; uniform, or restricted with ``--family``); no
+effect (null), one effect, two effects, an effect outside the library
 (50/150 Hz mains hum) and one effect below the noise floor, with magnitudes
 (RMS change on the validation records) from 0.1 to 100 noise standard
-deviations. Training records: eq. (19), steps with holds, multi-tone;
-validation: 1 and 20 Hz sines, another multi-tone, other steps; 5 kHz,
-about 20 s in all. :func:`fonbw.gap.diagnose` sees only the records.
+deviations; in a share of the scenarios (``--mid-drive``, 30 %) a training
+and/or a validation record starts mid-drive. Training records: eq. (19),
+steps with holds, multi-tone; validation: 1 and 20 Hz sines, another
+multi-tone, other steps; 5 kHz, about 20 s in all.
+:func:`fonbw.gap.diagnose` sees only the records.
 
 Usage::
 
-    python benchmarks/blind_gap.py [-n 40] [--seed0 1000] [--out /tmp/blind_gap.jsonl] [--only single below]
+    python benchmarks/blind_gap.py [-n 40] [--seed0 1000] [--out /tmp/blind_gap.jsonl]
+                                   [--only single below] [--family preisach pi] [--oracle]
     python benchmarks/blind_gap.py --summary /tmp/blind_gap.jsonl
 
 Each scenario is appended to the JSON-lines file as it finishes, so a long run
-can be stopped and summarized at any time. A single effect is *material* when
-its magnitude is at least 2 noise standard deviations. For single effects the
-benchmark also measures how much of the effect a FONBW fitted to the
-noiseless truth leaves (:func:`unabsorbed`), to tell effects the nominal
-model absorbs from effects the diagnosis misses.
+can be stopped and summarized at any time (:mod:`gap_summary`). A single
+effect is *material* when its magnitude is at least 2 noise standard
+deviations. The harness knows the truth and measures two oracles the
+diagnosis never sees: for single effects how much of the effect a FONBW
+fitted to the noiseless truth leaves (:func:`unabsorbed`), and with
+``--oracle`` how far the best FONBW is from the core alone
+(:func:`form_excess`, cached by scenario in ``--oracle-cache``).
 """
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import math
 import os
 import sys
 import time
-from collections import Counter, defaultdict
 
 import numpy as np
 
-MATERIAL = 2.0
-# an unabsorbed gap of 0.5 σ is a validation MSE of 1.25 σ², just above the
-# diagnosis' noise-floor tolerance (1.2 σ²): below it nothing can be named
-UNABSORBED = 0.5
+from gap_summary import summary
+
+DEFAULTS = {"families": None, "scale": 1.0, "mid_drive": 0.3, "oracle": False, "oracle_evals": 1500,
+            "cache": None, "diagnose": None, "diagnose_kwargs": None}
+
+
+def _clean_records(sc, effects):
+    """Noiseless truth records over the whole drives (from rest), training and validation.
+
+    The oracles judge the core and the effects, not the initial state: they
+    see every drive from rest, whatever the records the diagnosis gets.
+    Record indices as in :func:`gap_truth.draw_scenario` (training i,
+    validation 50 + i), so the drift's random walk is the same one.
+    """
+    from fonbw.io import Record
+
+    truth = sc["truth"]
+    out = []
+    for key, off in (("train_drives", 0), ("validate_drives", 50)):
+        out.append([Record.from_arrays(u=u, y=truth.output(u, off + i, effects=effects), dt=truth.dt)
+                    for i, (_, u, _) in enumerate(sc[key])])
+    return out
+
+
+def fonbw_excess(sc, effects=None, evals=1500, seed=0):
+    """RMS gap [noise stds] on the validation drives between the noiseless truth
+    and the best FONBW identified on the noiseless training drives.
+
+    Parameters
+    ----------
+    sc : dict
+        A scenario of :func:`gap_truth.draw_scenario`.
+    effects : dict, optional
+        Effects of the truth (None: the scenario's; ``{}``: the core alone).
+    evals : int
+        Evaluation budget of the identification.
+    seed : int
+        Seed of the identification.
+
+    Returns
+    -------
+    float or None
+        None when the identified FONBW diverges on a validation drive twice.
+    """
+    from fonbw.identify import identify
+
+    train, val = _clean_records(sc, effects)
+    # a short search can end on a FONBW that is fine on the training drives
+    # and diverges on a faster validation drive: that says nothing of the
+    # form, so try another seed before giving up (None)
+    for s in (seed, seed + 1):
+        model = identify(train, kind="fonbw", seed=s, max_evals=evals).model
+        num = n = 0
+        for r in val:
+            d = r.y - model.simulate(r.u, r.dt)
+            num += float(np.sum(d * d))
+            n += r.u.size
+        if math.isfinite(num):
+            return math.sqrt(num / n) / sc["truth"].noise_std
+    return None
 
 
 def unabsorbed(sc, evals=1500):
-    """RMS gap [noise stds] on the validation records between the noiseless truth
-    and the best FONBW identified on the noiseless training records.
+    """What of the truth (core and effects) the best FONBW leaves [noise stds].
 
     The oracle of what a nominal FONBW can absorb of an injected effect
     (creep, for one, is partly a power-law relaxation that the fractional
     memory represents): an effect whose unabsorbed gap is small leaves the
     diagnosis nothing to find, whatever its magnitude against the pure
-    hysteresis. Uses the truth, so it is the benchmark's, never the diagnosis'.
+    hysteresis. On a core that is not a FONBW it includes the form's gap
+    (:func:`form_excess`). Uses the truth, so it is the benchmark's, never the
+    diagnosis'.
     """
-    from fonbw.identify import identify
-    from fonbw.io import Record
-
-    truth = sc["truth"]
-    # the scenario's own inputs and record indices (draw_scenario: training
-    # i, validation 50 + i), so the drift's random walk is the same one
-    clean = [Record.from_arrays(u=r.u, y=truth.output(r.u, i), dt=truth.dt) for i, r in enumerate(sc["train"])]
-    model = identify(clean, "fonbw", seed=0, max_evals=evals).model
-    num = n = 0
-    for i, r in enumerate(sc["validate"]):
-        u = r.u
-        d = truth.output(u, 50 + i) - model.simulate(u, truth.dt)
-        num += float(np.sum(d * d))
-        n += u.size
-    return math.sqrt(num / n) / truth.noise_std
+    return fonbw_excess(sc, None, evals)
 
 
-def run(n, seed0, out, budget, only=None):
-    from fonbw.gap import diagnose
-    from gap_truth import draw_scenario, scenario_kind
+def form_excess(sc, evals=1500):
+    """What of the core alone the best FONBW leaves [noise stds]: the form is
+    material at ≥ 2 and absent below 0.5."""
+    return fonbw_excess(sc, {}, evals)
 
-    done = set()
-    if os.path.exists(out):
-        with open(out) as fh:
-            done = {json.loads(line)["seed"] for line in fh if line.strip()}
+
+def _oracle_keys(seed, sc, scale):
+    core = sc["truth"].core
+    base = f"{seed}|{getattr(core, 'name', 'fonbw:legacy')}|{scale:g}"
+    inj = json.dumps({k: v["params"] for k, v in sc["injected"].items()}, sort_keys=True, default=float)
+    return {"form_excess_sigma": base, "unabsorbed": base + "|" + hashlib.sha256(inj.encode()).hexdigest()[:12]}
+
+
+def _oracles(seed, sc, opt):
+    """Oracle values of a scenario, from the cache where there; ``(values, new cache entries)``."""
+    cache = opt["cache"] or {}
+    keys = _oracle_keys(seed, sc, opt["scale"])
+    want = []
+    if sc["kind"] in ("single", "below"):
+        want.append(("unabsorbed", unabsorbed))
+    if opt["oracle"]:
+        want.append(("form_excess_sigma", form_excess))
+    vals, new = {}, {}
+    for name, fn in want:
+        k = keys[name]
+        if k not in cache:
+            new[k] = fn(sc, opt["oracle_evals"])
+        vals[name] = cache.get(k, new.get(k))
+    if vals.get("unabsorbed") is not None and vals.get("form_excess_sigma") is not None:
+        # the part of the unabsorbed gap the form does not already explain
+        # (the two gaps are not orthogonal: an estimate)
+        vals["unabsorbed_effect"] = math.sqrt(max(0.0, vals["unabsorbed"] ** 2 - vals["form_excess_sigma"] ** 2))
+    return vals, new
+
+
+def _verdict(res):
+    """The fields of the diagnosis' JSON the summary reads (``verdict.form`` may be missing)."""
+    d = res.to_dict() if hasattr(res, "to_dict") else dict(res)
+    v, nom = d["verdict"], d.get("nominal", {})
+    return {"named": list(v["effects"]), "gap_closed": v["gap_closed"], "unexplained": v["unexplained"],
+            "at_floor": v.get("at_noise_floor"), "form": v.get("form"),
+            "noise_floor": nom.get("noise_floor"), "rms0": nom.get("rms_validate"),
+            "candidates": [{k: c.get(k) for k in ("effect", "gap_closed", "accepted", "checks")}
+                           for c in d.get("candidates", [])]}
+
+
+def run_scenario(seed, budget, options=None):
+    """Draw scenario `seed`, diagnose it and measure its oracles: one JSON-able row.
+
+    Parameters
+    ----------
+    seed : int
+    budget : int
+        Evaluation budget of the diagnosis.
+    options : dict, optional
+        ``families`` (tuple of family names, default all), ``scale``
+        (record durations), ``mid_drive`` (share of scenarios with a record
+        not starting at rest), ``oracle`` (measure the form oracle),
+        ``oracle_evals``, ``cache`` (oracle values by key, read only),
+        ``diagnose`` (the function, default :func:`fonbw.gap.diagnose`;
+        None-like values run it) and ``diagnose_kwargs``.
+
+    Returns
+    -------
+    dict
+        The row; ``row["oracle_cache"]`` holds the oracle values measured
+        here (key → value) for the caller to store, and is not part of the
+        JSON line.
+    """
+    from gap_cores import FAMILIES
+    from gap_truth import draw_scenario, scenario_family
+
+    opt = {**DEFAULTS, **(options or {})}
+    fams = tuple(opt["families"] or FAMILIES)
+    t0 = time.perf_counter()
+    family = scenario_family(seed, fams)
+    sc = draw_scenario(seed, scale=opt["scale"], family=family, mid_drive=opt["mid_drive"])
+    core = sc["truth"].core
+    row = {"seed": seed, "family": family, "core": {"name": core.name, "params": sc["core_params"]},
+           "kind": sc["kind"], "noise_std": sc["noise_std"], "scale": opt["scale"],
+           "starts_at_rest": sc["starts_at_rest"], "mid_drive": sc["mid_drive"],
+           "injected": {k: {"magnitude": v["magnitude"], "params": v["params"]} for k, v in sc["injected"].items()}}
+    diagnose = opt["diagnose"]
+    if diagnose is None:
+        from fonbw.gap import diagnose
+    try:
+        t1 = time.perf_counter()
+        res = diagnose(sc["train"], sc["validate"], seed=seed, budget=budget, **(opt["diagnose_kwargs"] or {}))
+        row["wall_s"] = time.perf_counter() - t1
+        row.update(_verdict(res))
+    except Exception as exc:  # keep the run going; the summary counts failures
+        row["error"] = f"{type(exc).__name__}: {exc}"
+    vals, new = _oracles(seed, sc, opt)
+    row.update(vals)
+    row["total_s"] = time.perf_counter() - t0
+    row["oracle_cache"] = new
+    return row
+
+
+def _read_jsonl(path):
+    if not path or not os.path.exists(path):
+        return []
+    with open(path) as fh:
+        return [json.loads(line) for line in fh if line.strip()]
+
+
+def run(n, seed0, out, budget, only=None, options=None, cache_path=None):
+    """Run scenarios seed0 … seed0 + n − 1 (those not yet in `out`), appending one line each."""
+    from gap_truth import scenario_kind
+
+    opt = {**DEFAULTS, **(options or {})}
+    done = {r["seed"] for r in _read_jsonl(out)}
+    cache = {r["key"]: r["value"] for r in _read_jsonl(cache_path)}
     for i in range(n):
         seed = seed0 + i
         if seed in done or (only and scenario_kind(seed) not in only):
             continue
-        t0 = time.perf_counter()
-        sc = draw_scenario(seed)
-        row = {"seed": seed, "kind": sc["kind"], "noise_std": sc["noise_std"],
-               "injected": {k: {"magnitude": v["magnitude"], "params": v["params"]} for k, v in sc["injected"].items()}}
-        try:
-            t1 = time.perf_counter()
-            res = diagnose(sc["train"], sc["validate"], seed=seed, budget=budget)
-            row["wall_s"] = time.perf_counter() - t1
-            v = res["verdict"]
-            row.update(named=v["effects"], gap_closed=v["gap_closed"], unexplained=v["unexplained"],
-                       at_floor=v["at_noise_floor"], noise_floor=res["nominal"]["noise_floor"],
-                       rms0=res["nominal"]["rms_validate"],
-                       candidates=[{k: c[k] for k in ("effect", "gap_closed", "accepted", "checks")}
-                                   for c in res["candidates"]])
-        except Exception as exc:  # keep the run going; the summary counts failures
-            row["error"] = f"{type(exc).__name__}: {exc}"
-        if sc["kind"] in ("single", "below"):
-            row["unabsorbed"] = unabsorbed(sc)
-        row["total_s"] = time.perf_counter() - t0
+        row = run_scenario(seed, budget, {**opt, "cache": cache})
+        new = row.pop("oracle_cache")
+        cache.update(new)
+        if cache_path and new:
+            with open(cache_path, "a") as fh:
+                for k, v in new.items():
+                    fh.write(json.dumps({"key": k, "value": v}) + "\n")
         with open(out, "a") as fh:
             fh.write(json.dumps(row, default=float) + "\n")
-        print(f"seed {seed} {row['kind']:8s} injected {[(k, round(v['magnitude'], 2)) for k, v in row['injected'].items()]}"
-              f" -> named {row.get('named')} gap_closed {row.get('gap_closed', float('nan')):.3f}"
+        inj = [(k, round(v["magnitude"], 2)) for k, v in row["injected"].items()]
+        print(f"seed {seed} {row['family']:8s} {row['kind']:8s} injected {inj}"
+              f"{'' if row['starts_at_rest'] else ' mid-drive'} -> named {row.get('named')}"
+              f" form {(row.get('form') or {}).get('material')} gap_closed {row.get('gap_closed', float('nan')):.3f}"
               f" unexplained {row.get('unexplained')} ({row['total_s']:.0f} s)", flush=True)
 
 
-def summary(path):
-    rows = [json.loads(line) for line in open(path) if line.strip()]
-    ok = [r for r in rows if "error" not in r]
-    lines = [f"scenarios: {len(rows)} ({len(rows) - len(ok)} failed to run)"]
-    by = defaultdict(list)
-    for r in ok:
-        by[r["kind"]].append(r)
-    lines.append("by kind: " + ", ".join(f"{k} {len(v)}" for k, v in sorted(by.items())))
+def _timing(seed, budget):
+    from fonbw.gap import diagnose
+    from gap_truth import draw_scenario
 
-    mag = lambda r: list(r["injected"].values())[0]["magnitude"]
-    one = by["single"] + by["below"]
-    # classes by the realized magnitude (RMS change on the validation records)
-    singles = [r for r in one if mag(r) >= MATERIAL]
-    below = [r for r in one if mag(r) < 0.5]
-    between = [r for r in one if 0.5 <= mag(r) < MATERIAL]
-    top1 = [r["named"][:1] == list(r["injected"]) for r in singles]
-    lines.append(f"top-1 accuracy on material single effects (≥ {MATERIAL:g} σ): {sum(top1)}/{len(top1)}"
-                 + (f" = {100 * np.mean(top1):.0f} %" if top1 else ""))
-    vis = [r for r in singles if not r["at_floor"]]
-    t1v = [r["named"][:1] == list(r["injected"]) for r in vis]
-    lines.append(f"  of these, where the nominal model's gap is above the noise floor: {sum(t1v)}/{len(t1v)}"
-                 + (f" = {100 * np.mean(t1v):.0f} %" if t1v else "")
-                 + f" ({len(singles) - len(vis)} absorbed by the refit nominal model, gap at the floor)")
-    measured = [r for r in singles if "unabsorbed" in r]
-    una = [r for r in measured if r["unabsorbed"] >= UNABSORBED]
-    t1u = [r["named"][:1] == list(r["injected"]) for r in una]
-    if measured:
-        absorbed = ", ".join(f"{list(r['injected'])[0]} {mag(r):.1f}σ→{r['unabsorbed']:.2f}σ named {r['named'] or '-'}"
-                             for r in measured if r["unabsorbed"] < UNABSORBED)
-        lines.append(f"  of these, where a FONBW fitted to the noiseless truth leaves ≥ {UNABSORBED:g} σ "
-                     f"(unabsorbed): {sum(t1u)}/{len(t1u)}" + (f" = {100 * np.mean(t1u):.0f} %" if t1u else "")
-                     + f"; absorbed (< {UNABSORBED:g} σ): {absorbed or 'none'}")
-    exact = [r["named"] == list(r["injected"]) for r in singles]
-    lines.append(f"exactly the injected effect named (material single): {sum(exact)}/{len(exact)}")
-    if between:
-        lines.append("single effects of 0.5-2 σ: " + ", ".join(
-            f"{list(r['injected'])[0]} {mag(r):.1f}σ -> {r['named'] or '-'}" for r in between))
-
-    tp = fn = fp = 0
-    for r in by["pair"]:
-        inj = set(r["injected"])
-        nam = set(r["named"])
-        tp += len(inj & nam)
-        fn += len(inj - nam)
-        fp += len(nam - inj)
-    if by["pair"]:
-        lines.append(f"pairs: recall {tp}/{tp + fn} = {100 * tp / max(tp + fn, 1):.0f} %, "
-                     f"precision {tp}/{tp + fp} = {100 * tp / max(tp + fp, 1):.0f} %")
-    nulls = by["null"] + below
-    fa = [bool(r["named"]) for r in nulls]
-    lines.append(f"false alarms (null, and single effects < 0.5 σ): {sum(fa)}/{len(fa)}"
-                 + (f" = {100 * np.mean(fa):.0f} %" if fa else "")
-                 + f"; of these at the noise floor: {sum(r['at_floor'] for r in nulls)}/{len(nulls)}, "
-                 f"'unexplained': {sum(r['unexplained'] for r in nulls)}/{len(nulls)}")
-    for r in by["outside"]:
-        lines.append(f"out-of-library (hum, {list(r['injected'].values())[0]['magnitude']:.1f} σ): named {r['named']}, "
-                     f"unexplained {r['unexplained']}, gap_closed {r['gap_closed']:.2f}")
-    mat = singles + [r for r in by["pair"]]
-    gc = np.array([r["gap_closed"] for r in mat])
-    if gc.size:
-        lines.append(f"gap_closed on material in-library scenarios (n={gc.size}): median {np.median(gc):.3f}, "
-                     f"10th percentile {np.quantile(gc, 0.1):.3f}")
-    w = np.array([r["wall_s"] for r in ok])
-    lines.append(f"wall time per diagnosis: median {np.median(w):.0f} s, max {w.max():.0f} s")
-
-    lines += _confusion(singles)
-    lines += _per_scenario(rows)
-    return "\n".join(lines)
-
-
-def _confusion(singles):
-    """Markdown confusion table of the material single effects (rows injected,
-    columns the effect named first)."""
-    names = ["creep", "dynamics", "amplifier", "delay", "drift", "saturation"]
-    cols = names + ["none"]
-    conf = {a: Counter() for a in names}
-    for r in singles:
-        conf[list(r["injected"])[0]][r["named"][0] if r["named"] else "none"] += 1
-    lines = ["", "confusion (material single effects; rows injected, columns named first):"]
-    lines.append("")
-    lines.append("| injected \\ named | " + " | ".join(cols) + " |")
-    lines.append("|---" * (len(cols) + 1) + "|")
-    for a in names:
-        lines.append(f"| {a} | " + " | ".join(str(conf[a][c]) for c in cols) + " |")
-    lines.append("")
-    return lines
-
-
-def _per_scenario(rows):
-    """One line per scenario: injected, named, gap closed, wall time."""
-    lines = ["per scenario:"]
-    for r in rows:
-        inj = ", ".join(f"{k} {v['magnitude']:.2g}σ" for k, v in r["injected"].items()) or "-"
-        if "error" in r:
-            lines.append(f"  seed {r['seed']} {r['kind']}: {inj}: ERROR {r['error']}")
-        else:
-            una = f" unabsorbed {r['unabsorbed']:.2g}σ" if "unabsorbed" in r else ""
-            lines.append(f"  seed {r['seed']} {r['kind']}: {inj}{una} -> {r['named'] or '-'}"
-                         f" gap_closed {r['gap_closed']:.2f}{' unexplained' if r['unexplained'] else ''}"
-                         f"{' at-floor' if r['at_floor'] else ''} ({r['wall_s']:.0f} s)")
-    return lines
+    sc = draw_scenario(seed, "single", scale=1.5)
+    n = sum(len(r.u) for r in sc["train"] + sc["validate"])
+    t0 = time.perf_counter()
+    res = diagnose(sc["train"], sc["validate"], seed=0, budget=budget)
+    wall = time.perf_counter() - t0
+    print(f"{n} samples ({n * sc['train'][0].dt:.1f} s at {1 / sc['train'][0].dt:.0f} Hz), "
+          f"injected {list(sc['injected'])}, named {res['verdict']['effects']}: wall {wall:.0f} s "
+          f"(nominal {res['timing']['nominal_s']:.0f} s, attribution {res['timing']['attribute_s']:.0f} s); "
+          f"load average before/after: {os.getloadavg()[0]:.1f}")
 
 
 def main(argv=None):
+    from gap_cores import FAMILIES
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("-n", type=int, default=40, help="number of scenarios")
     ap.add_argument("--seed0", type=int, default=1000)
@@ -215,28 +273,26 @@ def main(argv=None):
     ap.add_argument("--budget", type=int, default=1000)
     ap.add_argument("--only", nargs="+", metavar="KIND",
                     help="run only the seeds that draw these kinds (null single pair outside below)")
+    ap.add_argument("--family", nargs="+", choices=FAMILIES, metavar="NAME",
+                    help=f"draw the core from these families only ({' '.join(FAMILIES)}; default all, uniform)")
+    ap.add_argument("--mid-drive", type=float, default=DEFAULTS["mid_drive"],
+                    help="share of scenarios with a record that starts mid-drive")
+    ap.add_argument("--scale", type=float, default=1.0, help="stretch every record's duration")
+    ap.add_argument("--oracle", action="store_true",
+                    help="measure the form oracle (one FONBW identification per scenario)")
+    ap.add_argument("--oracle-cache", metavar="JSONL", help="oracle values by scenario (default: OUT.oracle.jsonl)")
     ap.add_argument("--summary", metavar="JSONL", help="only summarize an existing run")
     ap.add_argument("--timing", action="store_true",
                     help="time one diagnosis on ~30 s of 5 kHz data (scenario durations x1.5)")
     ns = ap.parse_args(argv)
     if ns.timing:
-        from fonbw.gap import diagnose
-        from gap_truth import draw_scenario
-
-        sc = draw_scenario(ns.seed0, "single", scale=1.5)
-        n = sum(len(r.u) for r in sc["train"] + sc["validate"])
-        t0 = time.perf_counter()
-        res = diagnose(sc["train"], sc["validate"], seed=0, budget=ns.budget)
-        wall = time.perf_counter() - t0
-        print(f"{n} samples ({n * sc['train'][0].dt:.1f} s at {1 / sc['train'][0].dt:.0f} Hz), "
-              f"injected {list(sc['injected'])}, named {res['verdict']['effects']}: wall {wall:.0f} s "
-              f"(nominal {res['timing']['nominal_s']:.0f} s, attribution {res['timing']['attribute_s']:.0f} s); "
-              f"load average before/after: {os.getloadavg()[0]:.1f}")
+        _timing(ns.seed0, ns.budget)
         return 0
     if ns.summary:
         print(summary(ns.summary))
         return 0
-    run(ns.n, ns.seed0, ns.out, ns.budget, ns.only)
+    opt = {"families": ns.family, "scale": ns.scale, "mid_drive": ns.mid_drive, "oracle": ns.oracle}
+    run(ns.n, ns.seed0, ns.out, ns.budget, ns.only, opt, ns.oracle_cache or ns.out + ".oracle.jsonl")
     print(summary(ns.out))
     return 0
 
