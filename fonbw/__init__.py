@@ -1,7 +1,7 @@
 """fonbw — fractional-order normalized Bouc-Wen hysteresis of piezoelectric actuators.
 
 Equation numbers refer to Kang et al., "A Fractional-Order Normalized Bouc-Wen
-Model for Piezoelectric Hysteresis Nonlinearity" (the paper in shared/paper).
+Model for Piezoelectric Hysteresis Nonlinearity".
 
 Public contract (see the README)::
 

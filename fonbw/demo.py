@@ -114,7 +114,7 @@ def _stage_gap(bench, model, out, seed, b, progress):
     from .gap import diagnose, write_html as gap_html
     from .reproduce import decimate
 
-    q = max(1, int(round(bench.fs / 5000.0)))  # 5 kHz, the diagnosis rate
+    q = max(1, int(round(bench.fs / 5000.0)))  # 5 kHz, the rate the diagnosis is tuned and timed at
     Tt, Tv = b["gap_T"]
     train = [decimate(bench.record(eq19_input(bench.fs, Tt)[1], "eq19"), q),
              decimate(bench.record(step_hold_input(hold=Tv, fs=bench.fs)[1], "step_hold"), q)]
@@ -127,7 +127,7 @@ def _stage_gap(bench, model, out, seed, b, progress):
     os.makedirs(d, exist_ok=True)
     gap_html(res, os.path.join(d, "gap_report.html"))
     with open(os.path.join(d, "gap.json"), "w", encoding="utf-8") as fh:
-        json.dump(res, fh, indent=2, default=float)
+        json.dump(res.to_dict(), fh, indent=2, default=float)
     return res
 
 
