@@ -341,7 +341,7 @@ def draw_scenario(seed, kind=None, scale=1.0, fs=FS, family=None, core=None, mid
     elif family is not None:
         hyst = gap_cores.draw_core(family, np.random.default_rng([seed, 2026, 1]))
     if pool is None:
-        pool = LEGACY_POOL if family is None and core is None else POOL
+        pool = LEGACY_POOL if family is None else POOL
     noise = float(10 ** rng.uniform(-2, math.log10(0.03)))
     truth = Truth(hyst, {}, noise, fs, seed=int(rng.integers(1 << 30)))
     tr_in, va_in = default_experiments(fs, scale)
