@@ -174,8 +174,8 @@ def run_scenario(seed, budget, options=None):
         (record durations), ``mid_drive`` (share of scenarios with a record
         not starting at rest), ``oracle`` (measure the form oracle),
         ``oracle_evals``, ``cache`` (oracle values by key, read only),
-        ``diagnose`` (the function, default :func:`fonbw.gap.diagnose`;
-        None-like values run it) and ``diagnose_kwargs``.
+        ``diagnose`` (the function; None: :func:`fonbw.gap.diagnose`) and
+        ``diagnose_kwargs`` (passed on to it).
 
     Returns
     -------
