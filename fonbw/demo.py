@@ -188,7 +188,7 @@ def run_demo(out_dir="demo-out", *, seed=0, quick=False, progress=True) -> dict:
     return res
 
 
-def _write_report(out_dir, bench, res, st, b, seed, quick):
+def _bench_sections(out_dir, bench, res):
     secs = []
     cfg = bench.config()
     secs.append(Section(
@@ -196,6 +196,11 @@ def _write_report(out_dir, bench, res, st, b, seed, quick):
         "The 'real' actuator every number below is measured on: not built from the FONBW equations.",
         md_table(["setting", "value"], [[k, v] for k, v in cfg.items() if k != "params"])
         + "\n\nRecords written: " + ", ".join(f"`{os.path.relpath(p, out_dir)}`" for p in (res["data"] or []))))
+    return secs
+
+
+def _reproduce_sections(res):
+    secs = []
     rep = res["reproduce"]
     if rep:
         t1 = rep["table1"]
@@ -220,6 +225,11 @@ def _write_report(out_dir, bench, res, st, b, seed, quick):
                             "u = 60 − 60 cos(2πft) V.", body + "\n\n" + rep["ordering"],
                             [(rep["figures"]["fig9"], "Fig. 9: validation loops, bench (black) vs models."),
                              (rep["figures"]["fig10"], "Fig. 10: validation errors.")]))
+    return secs
+
+
+def _compensate_sections(res):
+    secs = []
     comp = res["compensate"]
     if comp:
         rows, figs = comp
@@ -230,11 +240,21 @@ def _write_report(out_dir, bench, res, st, b, seed, quick):
                             "plant = model rows are the ideal case (compensator and plant the same model).",
                             md_table(keys, _fmt_rows(rows, keys)),
                             [(p, "Tracking and error: " + os.path.basename(p)) for p in figs]))
+    return secs
+
+
+def _fmu_sections(out_dir, res):
+    secs = []
     if res["fmus"]:
         secs.append(Section("FMUs", "FMI 2.0 co-simulation FMUs built by fonbw build-fmu with the identified FONBW "
                             "parameters (validated by fmpy during the build).",
                             "\n".join(f"- `{os.path.relpath(p, out_dir)}` ({os.path.getsize(p) / 1e3:.0f} kB)"
                                       for p in res["fmus"])))
+    return secs
+
+
+def _cosim_sections(res):
+    secs = []
     cos = res["cosim"]
     if cos:
         rows, figs = cos
@@ -243,6 +263,11 @@ def _write_report(out_dir, bench, res, st, b, seed, quick):
         secs.append(Section("Closed loop in fmpy", "The compensator, hysteresis, plant (mechanics + creep) and "
                             "PI controller FMUs in a 10 kHz loop run by the fmpy master: feedforward, feedback, both.",
                             md_table(keys, _fmt_rows(rows, keys)), [(p, os.path.basename(p)) for p in figs]))
+    return secs
+
+
+def _gap_sections(out_dir, bench, res):
+    secs = []
     gap = res["gap"]
     if gap:
         d = os.path.join(out_dir, "gap")
@@ -259,12 +284,24 @@ def _write_report(out_dir, bench, res, st, b, seed, quick):
         secs.append(Section("Sim-to-real gap", "Where the identified FONBW model misses the bench, which "
                             "unmodelled effect causes it and how far adding it closes the gap.", body,
                             [(p, "Gap closed per candidate effect.") for p in _gap_figures(gap, d)]))
+    return secs
+
+
+def _run_sections(st, seed, quick):
+    secs = []
     tm = st.times
     body = md_table(["stage", "wall time [s]"], [[k, v] for k, v in tm.items()])
     errs = {k: v for k, v in st.errors.items() if "traceback" not in k}
     if errs:
         body += "\n\n**Failed stages**\n\n" + "\n".join(f"- {k}: {v}" for k, v in errs.items())
     secs.append(Section("Run", f"Timings of this run (seed {seed}, {'quick' if quick else 'full'} budgets).", body))
+    return secs
+
+
+def _write_report(out_dir, bench, res, st, b, seed, quick):
+    secs = (_bench_sections(out_dir, bench, res) + _reproduce_sections(res) + _compensate_sections(res)
+            + _fmu_sections(out_dir, res) + _cosim_sections(res) + _gap_sections(out_dir, bench, res)
+            + _run_sections(st, seed, quick))
     title = "fonbw demo — FONBW hysteresis on the virtual bench"
     intro = ("This report walks the whole workflow of `fonbw` on its built-in virtual piezo bench: "
              "identification, validation, compensation, FMUs, closed loop and gap diagnosis.")

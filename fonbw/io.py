@@ -102,6 +102,19 @@ def read_record(path, need: Iterable[str] = ("u", "y"), jitter_tol: float = 1e-3
     """
     path = os.fspath(path)
     need = ["t"] + [c for c in need if c != "t"]
+    cols = _read_columns(path, need)
+    n = len(cols["t"])
+    if n < MIN_SAMPLES:
+        raise DataError(f"{path}: only {n} data row(s); at least {MIN_SAMPLES} are needed")
+    t = np.asarray(cols["t"], dtype=float)
+    dt = _uniform_step(path, t, jitter_tol)
+    arr = lambda c: np.asarray(cols[c], dtype=float) if c in cols else None
+    return Record(t=t, u=arr("u"), y=arr("y"), dt=dt, path=path, hd=arr("Hd"))
+
+
+def _read_columns(path, need) -> dict:
+    """The columns `need` (required: every value a finite number) and any of u,
+    y, Hd present (optional: unreadable values become NaN) as lists of floats."""
     try:
         fh = open(path, newline="", encoding="utf-8-sig")
     except OSError as exc:
@@ -123,34 +136,40 @@ def read_record(path, need: Iterable[str] = ("u", "y"), jitter_tol: float = 1e-3
             )
         idx = {c: names.index(c) for c in need}
         optional = {c: names.index(c) for c in ("u", "y", "Hd") if c in names and c not in idx}
-        cols = {c: [] for c in list(idx) + list(optional)}
-        allidx = {**idx, **optional}
         try:
-            for rowno, row in enumerate(reader, start=2):
-                if not row or all(not f.strip() for f in row):
-                    continue
-                for c, j in allidx.items():
-                    if j >= len(row):
-                        if c in idx:
-                            raise DataError(f"{path}: row {rowno}: column {c!r} is missing (row has {len(row)} fields)")
-                        cols[c].append(math.nan)
-                        continue
-                    field = row[j].strip()
-                    try:
-                        v = float(field)
-                    except ValueError:
-                        if c in idx:
-                            raise DataError(f"{path}: row {rowno}: column {c!r}: {field!r} is not a number") from None
-                        v = math.nan
-                    if not math.isfinite(v) and c in idx:
-                        raise DataError(f"{path}: row {rowno}: column {c!r}: value {field!r} is not finite")
-                    cols[c].append(v)
+            return _parse_rows(path, reader, idx, optional)
         except (csv.Error, UnicodeDecodeError) as exc:
             raise DataError(f"{path}: row {reader.line_num}: not readable as CSV ({exc})") from None
-    n = len(cols["t"])
-    if n < MIN_SAMPLES:
-        raise DataError(f"{path}: only {n} data row(s); at least {MIN_SAMPLES} are needed")
-    t = np.asarray(cols["t"], dtype=float)
+
+
+def _parse_rows(path, reader, idx, optional) -> dict:
+    cols = {c: [] for c in list(idx) + list(optional)}
+    allidx = {**idx, **optional}
+    for rowno, row in enumerate(reader, start=2):
+        if not row or all(not f.strip() for f in row):
+            continue
+        for c, j in allidx.items():
+            if j >= len(row):
+                if c in idx:
+                    raise DataError(f"{path}: row {rowno}: column {c!r} is missing (row has {len(row)} fields)")
+                cols[c].append(math.nan)
+                continue
+            field = row[j].strip()
+            try:
+                v = float(field)
+            except ValueError:
+                if c in idx:
+                    raise DataError(f"{path}: row {rowno}: column {c!r}: {field!r} is not a number") from None
+                v = math.nan
+            if not math.isfinite(v) and c in idx:
+                raise DataError(f"{path}: row {rowno}: column {c!r}: value {field!r} is not finite")
+            cols[c].append(v)
+    return cols
+
+
+def _uniform_step(path, t, jitter_tol) -> float:
+    """The median time step [s], once every step is positive and within
+    `jitter_tol` (relative) of it; rows are named one-based with the header."""
     dts = np.diff(t)
     bad = np.flatnonzero(dts <= 0)
     if bad.size:
@@ -165,8 +184,7 @@ def read_record(path, need: Iterable[str] = ("u", "y"), jitter_tol: float = 1e-3
             f"{path}: row {r}: non-uniform sampling: step {dts[bad[0]]:.6g} s differs from the median "
             f"step {dt:.6g} s by {100 * dev[bad[0]]:.3g} % (tolerance {100 * jitter_tol:.3g} %)"
         )
-    arr = lambda c: np.asarray(cols[c], dtype=float) if c in cols else None
-    return Record(t=t, u=arr("u"), y=arr("y"), dt=dt, path=path, hd=arr("Hd"))
+    return dt
 
 
 #: Fewest leading samples at constant input that count as a rest segment.

@@ -20,7 +20,7 @@ import numpy as np
 
 from . import hysteresis as _hy
 from .bench import Bench
-from .compensate import DEFAULT_LIMITS, OK, _check_model, compensate
+from .compensate import DEFAULT_LIMITS, OK, check_model, compensate
 from .paper import PAPER_TABLE2, PAPER_TABLE4, SINE_FREQS
 from .signals import TRAJECTORIES, eq19_input, sine_input
 from .io import Record, atomic_open
@@ -264,7 +264,7 @@ def _table4_specs(models, limits, explicit):
     specs = {}
     for name, spec in models.items():
         m, opts = spec if isinstance(spec, tuple) else (spec, {})
-        _check_model(m)
+        check_model(m)
         # Table 4 compares the paper's compensators: eq. (22) for the Zhu model
         form = "eq22" if isinstance(m, _hy.Zhu2016) else "discrete"
         specs[name] = (m, {"limits": limits, "explicit": explicit, "form": form, **opts})
