@@ -22,7 +22,8 @@ from fonbw.bench import Bench, BenchParams
 from fonbw.paper import SINE_FREQS
 from fonbw.signals import eq19_input, multi_input, sine_input
 from fonbw.identify import identify
-from fonbw.reproduce import decimate, table3
+from fonbw.io import decimate
+from fonbw.reproduce import table3
 
 
 def case(name, bench, extra_train, evals, seed, q):

@@ -69,7 +69,7 @@ import numpy as np
 from numba import njit
 
 from . import plant as _plant
-from .io import Record, write_csv
+from .io import Record, as_signal, write_csv
 from .paper import FS, SINE_FREQS, U_RANGE
 from .signals import EQ19_T, bipolar_input, eq19_input, multi_input, sine_input, step_hold_input
 
@@ -198,13 +198,7 @@ def _slew_kernel(v, max_step, v0):  # pragma: no cover - compiled
 
 
 def _as_input(u) -> np.ndarray:
-    u = np.ascontiguousarray(u, dtype=float)
-    if u.ndim != 1 or u.size == 0:
-        raise ValueError(f"u must be a non-empty 1-D array of voltages [V], got shape {u.shape}")
-    if not np.all(np.isfinite(u)):
-        k = int(np.flatnonzero(~np.isfinite(u))[0])
-        raise ValueError(f"u[{k}] = {u[k]!r} is not finite")
-    return u
+    return as_signal(u, "command u [V]", empty_ok=False)
 
 
 # ---------------------------------------------------------------------------

@@ -112,7 +112,7 @@ def _stage_cosim(model, out, b):
 def _stage_gap(bench, model, out, seed, b, progress):
     from .signals import eq19_input, multi_input, sine_input, step_hold_input
     from .gap import diagnose, write_html as gap_html
-    from .reproduce import decimate
+    from .io import decimate
 
     q = max(1, int(round(bench.fs / 5000.0)))  # 5 kHz, the rate the diagnosis is tuned and timed at
     Tt, Tv = b["gap_T"]

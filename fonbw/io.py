@@ -24,7 +24,8 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-__all__ = ["DataError", "Record", "read_record", "write_csv", "atomic_open", "rest_offset", "zero_at_rest"]
+__all__ = ["DataError", "Record", "read_record", "write_csv", "atomic_open", "rest_offset", "zero_at_rest",
+           "as_signal", "decimate"]
 
 #: Minimum number of samples a record must hold to be usable.
 MIN_SAMPLES = 8
@@ -74,6 +75,46 @@ class Record:
             t = np.arange(n) * float(dt)
         conv = lambda a: None if a is None else np.ascontiguousarray(a, dtype=float)
         return cls(t=conv(t), u=conv(u), y=conv(y), dt=float(dt), path=path, hd=conv(hd))
+
+
+def as_signal(x, what: str, empty_ok: bool = True) -> np.ndarray:
+    """`x` as a contiguous 1-D float array of finite values.
+
+    Parameters
+    ----------
+    x : array_like
+        The samples.
+    what : str
+        What the signal is, with its unit, for the message (``"input u [V]"``).
+    empty_ok : bool
+        Whether no samples at all is acceptable.
+
+    Raises
+    ------
+    ValueError
+        Not 1-D (or empty when that is refused), or a sample that is NaN or infinite.
+    """
+    a = np.ascontiguousarray(x, dtype=float)
+    if a.ndim != 1 or (a.size == 0 and not empty_ok):
+        raise ValueError(f"{what} must be a {'' if empty_ok else 'non-empty '}1-D array, got shape {a.shape}")
+    bad = np.flatnonzero(~np.isfinite(a))
+    if bad.size:
+        raise ValueError(f"{what} is not finite at sample {int(bad[0])} ({float(a[bad[0]])!r}; "
+                         "NaN or infinite values are refused)")
+    return a
+
+
+def decimate(rec: Record, q: int) -> Record:
+    """Every q-th sample of a record (u is a zero-order-hold input; y is already
+    low-pass filtered by the sensor, so no anti-alias filter is added)."""
+    q = int(q)
+    if q < 1:
+        raise ValueError(f"decimation factor must be ≥ 1, got {q}")
+    if q == 1:
+        return rec
+    keep = lambda a: None if a is None else a[::q]
+    return Record(t=rec.t[::q], u=keep(rec.u), y=keep(rec.y), dt=rec.dt * q,
+                  path=rec.path + f" (every {q}th sample)", hd=keep(rec.hd))
 
 
 def read_record(path, need: Iterable[str] = ("u", "y"), jitter_tol: float = 1e-3) -> Record:

@@ -23,23 +23,12 @@ from .bench import Bench
 from .compensate import DEFAULT_LIMITS, OK, check_model, compensate
 from .paper import PAPER_TABLE2, PAPER_TABLE4, SINE_FREQS
 from .signals import TRAJECTORIES, eq19_input, sine_input
-from .io import Record, atomic_open
+from .io import Record, atomic_open, decimate
 
-__all__ = ["decimate", "identify_models", "table1", "table2", "table3", "reproduce", "KIND_LABELS",
+__all__ = ["identify_models", "table1", "table2", "table3", "reproduce", "KIND_LABELS",
            "table4", "format_table4", "reproduce_table4"]
 
 KIND_LABELS = {"fonbw": "FONBW", "cbw": "CBW", "zhu": "Zhu et al. (eq. 20)", "nbw": "asymmetric NBW"}
-
-def decimate(rec: Record, q: int) -> Record:
-    """Every q-th sample of a record (u is a zero-order-hold input; y is already
-    low-pass filtered by the sensor, so no anti-alias filter is added)."""
-    q = int(q)
-    if q < 1:
-        raise ValueError(f"decimation factor must be ≥ 1, got {q}")
-    if q == 1:
-        return rec
-    return Record(t=rec.t[::q], u=rec.u[::q], y=rec.y[::q], dt=rec.dt * q, path=rec.path + f" (every {q}th sample)")
-
 
 def identify_models(train, kinds=("fonbw", "cbw", "zhu"), *, seed=0, max_evals=3000, progress=False,
                     memory="fast"):

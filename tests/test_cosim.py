@@ -67,11 +67,8 @@ json.dump(report, open(out + ".json", "w"), indent=1)
 
 
 @pytest.fixture(scope="module")
-def fmu_dir(tmp_path_factory):
-    d = tmp_path_factory.mktemp("cosim_fmus")
-    for pl in PLANTS:
-        loop.build_fmus(d, None if pl == "none" else pl)
-    return d
+def fmu_dir(loop_fmus_dir):
+    return loop_fmus_dir
 
 
 def _drive(master, fmu_dir, cases, tag):

@@ -1,4 +1,5 @@
-"""`fonbw demo` end to end at reduced budgets, and its report in a real browser."""
+"""`fonbw demo` end to end at reduced budgets, run from a wheel install in an
+empty folder (no file of the repository is read), and its report in a real browser."""
 import os
 import re
 import shutil
@@ -11,13 +12,16 @@ SECTIONS = ["Virtual bench", "Table 1 — identification", "Table 2 — paramete
             "Table 4 — feedforward compensation", "FMUs", "Closed loop in fmpy", "Sim-to-real gap", "Run"]
 
 
+pytestmark = pytest.mark.slow
+
+
 @pytest.fixture(scope="module")
-def demo_dir(tmp_path_factory):
-    out = tmp_path_factory.mktemp("demo")
-    r = subprocess.run([sys.executable, "-m", "fonbw", "demo", "--quick", "-o", str(out)], capture_output=True,
-                       text=True, timeout=1500)
+def demo_dir(tmp_path_factory, wheel_env):
+    work = tmp_path_factory.mktemp("demo-cwd")
+    r = wheel_env[2]("demo", "--quick", "-o", "demo", cwd=work)
     assert r.returncode == 0, r.stderr[-2000:]
-    return out
+    assert "wrote demo/report.html" in r.stdout
+    return work / "demo"
 
 
 def _section(md, title):

@@ -11,6 +11,7 @@ import math
 import numpy as np
 
 from .. import hysteresis as _hy
+from ..io import as_signal
 from ..paper import U_RANGE
 from .kernels import (NOT_CONVERGED, OK, SAT_HIGH, SAT_LOW, _run_cbw, _run_fonbw, _run_zhu, _run_zhu22,
                       _step_cbw, _step_fonbw, _step_zhu, _step_zhu22)
@@ -114,13 +115,7 @@ def _explicit_coeffs(model, explicit):
 
 
 def _hd(Hd):
-    Hd = np.ascontiguousarray(Hd, dtype=float)
-    if Hd.ndim != 1:
-        raise ValueError(f"desired displacement Hd must be a 1-D array, got shape {Hd.shape}")
-    if not np.all(np.isfinite(Hd)):
-        k = int(np.flatnonzero(~np.isfinite(Hd))[0])
-        raise ValueError(f"desired displacement Hd is not finite at sample {k}")
-    return Hd
+    return as_signal(Hd, "desired displacement Hd [µm]")
 
 
 # ---------------------------------------------------------------------------

@@ -113,10 +113,7 @@ def model_resource(params, dt: float = DEFAULT_DT) -> dict:
         raise BuildError(f"{params}: cannot load parameter set: {e}") from e
     if not isinstance(model, fonbw.FONBW):  # NBW is a FONBW with lam1 = lam2 = 1
         raise BuildError(f"{params}: the FMUs wrap the FONBW model, got kind {model.kind!r}")
-    p = dict(model.params)
-    p.setdefault("lam1", 1.0)
-    p.setdefault("lam2", 1.0)
-    return {"model": fonbw.FONBW(**p).to_dict(), "dt": float(dt),
+    return {"model": model.as_fonbw().to_dict(), "dt": float(dt),
             "limits": [float(x) for x in DEFAULT_LIMITS]}
 
 

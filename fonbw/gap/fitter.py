@@ -19,6 +19,7 @@ import numpy as np
 from .. import hysteresis as hyst
 from ..de import jde_minimize
 from ..io import Record
+from ..io import decimate as io_decimate
 
 __all__ = ["KIND", "Fitter", "simulate_rows", "x_from_model", "decimate"]
 
@@ -359,6 +360,4 @@ def x_from_model(model, space):
 def decimate(records, q):
     """Every q-th sample of each record (the global search runs on these; the
     inputs of the paper's experiments are far below the new Nyquist frequency)."""
-    if q <= 1:
-        return list(records)
-    return [Record.from_arrays(u=r.u[::q], y=r.y[::q], dt=r.dt * q, path=r.path) for r in records]
+    return [io_decimate(r, max(1, q)) for r in records]

@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from .. import fractional as fr
-from ..io import atomic_open
+from ..io import as_signal, atomic_open
 from .kernels import (CODE_CBW, CODE_FONBW, CODE_ZHU, FONBW_S0, cbw_core, cbw_step,
                       fonbw_core, fonbw_exact_leaf, fonbw_step, fonbw_views, plain_views,
                       run_kernel, zhu_core, zhu_step)
@@ -69,12 +69,7 @@ def _ku(ku):
 
 
 def _input(u):
-    u = np.ascontiguousarray(u, dtype=float)
-    if u.ndim != 1:
-        raise ValueError(f"input u must be a 1-D array, got shape {u.shape}")
-    if not np.all(np.isfinite(u)):
-        raise ValueError("input u contains NaN or infinite values")
-    return u
+    return as_signal(u, "input u [V]")
 
 
 def _dt(dt):
@@ -215,6 +210,14 @@ class FONBW(_Model):
     def stepper(self, dt) -> "Stepper":
         """Per-sample stepper at step dt [s] (same numbers as :meth:`simulate`)."""
         return _FONBWStepper(self, _dt(dt))
+
+    def as_fonbw(self) -> "FONBW":
+        """This model as a plain :class:`FONBW` (an NBW becomes λ1 = λ2 = 1 with the
+        default memory engine); the FMUs and the closed loop take this form."""
+        p = dict(self.params)
+        p.setdefault("lam1", 1.0)
+        p.setdefault("lam2", 1.0)
+        return FONBW(**p)
 
     def tail_error(self, dt=None):
         """Fast-engine tail errors E1 of the two derivatives (0 for other engines)."""

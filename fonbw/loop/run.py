@@ -123,10 +123,7 @@ def as_model(m, what):
         m = load_model(m)
     if not isinstance(m, FONBW):  # NBW is a FONBW
         raise ValueError(f"{what} must be a FONBW/NBW model (the FMUs wrap FONBW), got {type(m).__name__}")
-    p = dict(m.params)
-    p.setdefault("lam1", 1.0)
-    p.setdefault("lam2", 1.0)
-    return FONBW(**p)
+    return m.as_fonbw()
 
 
 def _check_run(scenario, mode, master, T, dt):
