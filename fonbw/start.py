@@ -1,0 +1,125 @@
+"""How a record starts: at rest, or mid-drive with an unknown hysteresis state.
+
+A hysteresis model simulated from the first sample assumes a known initial
+state (the demagnetized/at-rest state). A record cut out of a running drive
+starts in a state that depends on the unseen history, so its first samples
+show a start-up transient that no model block should be credited with. The
+state is wiped out once the input has swept close to both extremes of the
+record: after that the output no longer depends on the initial state (the
+wiping-out property of Preisach-type and Bouc-Wen-type hysteresis). Samples
+before that point are the *burn-in* and are excluded from fitting and scoring.
+
+Used by the gap diagnosis and by the identify/validate commands.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+__all__ = ["StartState", "start_state", "HOLD_SAMPLES", "MAX_BURN_IN_SHARE"]
+
+#: Samples the input must be held at its first value to call the start at rest.
+HOLD_SAMPLES = 10
+#: Largest share of a record excluded as burn-in (the rest is kept for scoring).
+MAX_BURN_IN_SHARE = 0.40
+#: How close to its record extremes the input must come [fraction of u range].
+EXTREME_TOL = 0.05
+
+
+@dataclasses.dataclass(frozen=True)
+class StartState:
+    """How a record starts.
+
+    Attributes
+    ----------
+    at_rest : bool
+        True when the input is held at its first value for at least
+        ``HOLD_SAMPLES`` samples and the output does not move meanwhile.
+    burn_in : int
+        Number of leading samples to exclude (0 when at rest): until the input
+        has come within ``EXTREME_TOL`` of both its record minimum and maximum,
+        capped at ``MAX_BURN_IN_SHARE`` of the record.
+    reason : str
+        One sentence saying why.
+    """
+
+    at_rest: bool
+    burn_in: int
+    reason: str
+
+    def to_dict(self) -> dict:
+        """JSON-ready form."""
+        return {"at_rest": bool(self.at_rest), "burn_in": int(self.burn_in), "reason": self.reason}
+
+
+def noise_level(x: np.ndarray) -> float:
+    """Robust white-noise standard deviation of a smooth signal plus noise.
+
+    Uses the median absolute second difference: the second difference of a
+    smooth (oversampled) signal is negligible, that of white noise has
+    variance 6σ².
+
+    Parameters
+    ----------
+    x : ndarray
+        Signal (any unit).
+
+    Returns
+    -------
+    float
+        Noise standard deviation, same unit as `x`.
+    """
+    if len(x) < 3:
+        return 0.0
+    d2 = np.diff(np.asarray(x, float), 2)
+    return float(np.median(np.abs(d2 - np.median(d2))) / 0.6745 / np.sqrt(6.0))
+
+
+def _held(x: np.ndarray, k: int, tol: float) -> bool:
+    return bool(np.max(np.abs(x[:k] - x[0])) <= tol)
+
+
+def _sweep_end(u: np.ndarray, tol: float) -> int:
+    """First sample index after the input has reached both record extremes."""
+    lo = np.flatnonzero(u <= u.min() + tol)
+    hi = np.flatnonzero(u >= u.max() - tol)
+    return int(max(lo[0], hi[0])) + 1
+
+
+def start_state(record, hold: int = HOLD_SAMPLES, max_share: float = MAX_BURN_IN_SHARE) -> StartState:
+    """Decide whether a record starts at rest and how many samples to burn in.
+
+    Parameters
+    ----------
+    record : fonbw.io.Record
+        Needs ``u`` [V] and ``y`` [µm]; ``dt`` [s] is not used.
+    hold : int
+        Samples the input must stay at its first value for an at-rest start.
+    max_share : float
+        Cap of the burn-in as a share of the record length (0..1).
+
+    Returns
+    -------
+    StartState
+    """
+    u = np.asarray(record.u, float)
+    y = np.asarray(record.y, float) if record.y is not None else np.zeros_like(u)
+    n = len(u)
+    if n == 0:
+        return StartState(True, 0, "empty record")
+    span_u = float(np.ptp(u))
+    if span_u == 0.0:
+        return StartState(True, 0, "input constant over the record")
+    k = min(hold, n)
+    tol_u = max(1e-3 * span_u, 4.0 * noise_level(u))
+    tol_y = max(1e-3 * float(np.ptp(y)), 4.0 * noise_level(y))
+    if k >= hold and _held(u, k, tol_u) and _held(y, k, tol_y):
+        return StartState(True, 0, f"input held at {u[0]:.4g} V for {k} samples and output still: at rest")
+    end = _sweep_end(u, EXTREME_TOL * span_u)
+    cap = int(max_share * n)
+    if end > cap:
+        return StartState(False, cap, f"not at rest; input reaches both extremes only at sample {end}, "
+                                      f"burn-in capped at {cap} ({max_share:.0%} of the record)")
+    return StartState(False, end, f"not at rest; input reaches both record extremes by sample {end}: "
+                                  f"{end} samples burned in")
