@@ -1,9 +1,9 @@
 """FMU script: discrete PID with feedforward input, for closed-loop co-simulation.
 
 u = sat(u_ff + PID(r - y)) with the library's controller
-(fonbw.cosim.LoopController around fonbw.plant.PIDStepper: derivative filter,
+(fonbw.loop.LoopController around fonbw.pid.PIDStepper: derivative filter,
 anti-windup that sees the saturation of the sum).  Built by
-fonbw.cosim.build_pid_fmu (this is the controller block of the libcosim
+fonbw.fmu.build.build_pid_fmu (this is the controller block of the libcosim
 master; the fmpy and reference masters run the same library class in the
 master process).
 
