@@ -62,7 +62,9 @@ import time
 import numpy as np
 
 from ..io import Record
+from ..start import start_state
 from . import checks
+from . import form as fm
 from . import effects as fx
 from . import selection
 from .fitter import KIND, Fitter, decimate, x_from_model
@@ -167,11 +169,17 @@ class Diagnosis:
                                  f"{dt} s; all records need one sampling period")
         self.progress = progress
         self.space = search_space(KIND, self.train, N=N)
-        self.fitter = Fitter(self.train, self.space, N=N, memory=memory)
+        # a record that starts mid-drive is fitted and scored only after its burn-in
+        self.starts = {"train": [start_state(r) for r in self.train], "validate": [start_state(r) for r in self.val]}
+        self.skip_tr = [s.burn_in for s in self.starts["train"]]
+        self.skip_va = [s.burn_in for s in self.starts["validate"]]
+        self.val_s = [_cut(r, b) for r, b in zip(self.val, self.skip_va)]
+        self.fitter = Fitter(self.train, self.space, N=N, memory=memory, skip=self.skip_tr)
         # the global searches run on decimated records (Fitter on `coarse`)
         self.q = max(1, int(round(1.0 / (coarse_rate * dt))))
         self.coarse = decimate(self.train, self.q)
-        self.fitter_c = Fitter(self.coarse, self.space, N=N, memory=memory)
+        self.fitter_c = Fitter(self.coarse, self.space, N=N, memory=memory,
+                               skip=[int(math.ceil(b / self.q)) for b in self.skip_tr])
         U = max(float(np.max(np.abs(r.u))) for r in self.train)
         t_max = max(len(r.u) * dt for r in self.train + self.val)
         ys = np.concatenate([r.y for r in self.train])
@@ -213,29 +221,39 @@ class Diagnosis:
             x0 = x_from_model(model, self.space)
         # the creep block is driven by the nominal output: a first pass without it
         zero_ref = [np.zeros(len(r.u)) for r in train]
-        self.base = self.fitter.refit([], x0, [], zero_ref, evals=self.refit_evals, seed=self.seed)
-        self.nominal = self.fitter.model(self.base)
-        self.yref_tr = self.fitter.predict(train, self.base, [], zero_ref)
-        self.yref_c = [y[::self.q] for y in self.yref_tr]
-        self.yref_va = [self.nominal.simulate(r.u, dt) for r in val]
-        self.p0_va = self.fitter.predict(val, self.base, [], [np.zeros(len(r.u)) for r in val])
+        self.set_nominal(self.fitter.refit([], x0, [], zero_ref, evals=self.refit_evals, seed=self.seed))
         self.timing["nominal_s"] = time.perf_counter() - t0
         self.say(f"nominal fitted in {self.timing['nominal_s']:.1f} s, train rms {self.base['rms']:.4g} µm")
+
+    def set_nominal(self, fit):
+        """Take the FONBW configuration `fit` as the nominal and predict with it."""
+        train, val, dt = self.train, self.val, self.dt
+        zero_ref = [np.zeros(len(r.u)) for r in train]
+        self.base = fit
+        self.nominal = self.fitter.model(fit)
+        self.yref_tr = self.fitter.predict(train, fit, [], zero_ref)
+        self.yref_c = [y[::self.q] for y in self.yref_tr]
+        self.yref_va = [self.nominal.simulate(r.u, dt) for r in val]
+        self.p0_va = self.cut_va(self.fitter.predict(val, fit, [], [np.zeros(len(r.u)) for r in val]))
+
+    def cut_va(self, preds):
+        """Validation predictions without each record's burn-in (what is scored)."""
+        return [p[b:] for p, b in zip(preds, self.skip_va)]
 
     # -- 2. noise floor and localization -----------------------------------
 
     def localize_residual(self):
         """Noise floor σ² [µm²], localization of the nominal validation residual,
         the nominal gap (``mse0``, ``excess0`` [µm²], ``at_floor``) and coverage."""
-        train, val = self.train, self.val
-        res_all = ([r.y - p for r, p in zip(train, self.yref_tr)]
+        train, val = self.train, self.val_s
+        res_all = ([(r.y - p)[b:] for r, p, b in zip(train, self.yref_tr, self.skip_tr)]
                    + [r.y - p for r, p in zip(val, self.p0_va)])
         self.sigma2 = noise_floor(res_all, self.dt)
         self.loc = localize(val, self.p0_va, self.dt, self.sigma2)
         self.mse0 = checks.mse(val, self.p0_va)
         self.excess0 = self.mse0 - self.sigma2
         self.at_floor = self.mse0 <= (1.0 + self.floor_tol) * self.sigma2
-        self.coverage = checks.coverage(train, val, self.dt)
+        self.coverage = checks.coverage(train, self.val, self.dt)
         self.say(f"noise floor σ = {math.sqrt(self.sigma2):.4g} µm, validation rms "
                  f"{math.sqrt(self.mse0):.4g} µm" + (" (at the floor)" if self.at_floor else ""))
 
@@ -248,12 +266,13 @@ class Diagnosis:
         A global search on the decimated records, then a local refit at the
         full rate. Returns (fit, validation predictions, validation MSE [µm²]).
         """
-        fitter, yref_tr = self.fitter, self.yref_tr
+        a = self.att
+        fitter, yref_tr = a["fitter"], a["yref_tr"]
         eff = [self.lib[i] for i in active]
         th0 = [start["th"][j] if j < len(start["th"]) else (e.grid[0] if len(e.names) else np.zeros(0))
                for j, e in enumerate(eff)]
-        fc = self.fitter_c.refit(eff, start["x"], th0, self.yref_c, evals=self.global_evals,
-                                 seed=self.seed, new=len(eff) - 1, local=False, popsize=16)
+        fc = a["fitter_c"].refit(eff, start["x"], th0, a["yref_c"], evals=a["global_evals"],
+                                 seed=self.seed, new=len(eff) - 1, local=False, popsize=a["popsize"])
         # the coarse optimum can sit worse at the full rate than the start
         # itself (the GL sums depend on the step): polish the better of the
         # two, the start with the new block's grid tried at the full rate
@@ -273,8 +292,8 @@ class Diagnosis:
         c_c = float(fitter.cost(fc["x"][None, :], eff, [t[None, :] for t in fc["th"]], yref_tr)[0])
         x1, th1 = (fc["x"], fc["th"]) if c_c <= c_s else (np.asarray(start["x"]), th_s)
         fit = fitter.refit(eff, x1, th1, yref_tr, evals=self.refit_evals, seed=self.seed)
-        pv = fitter.predict(self.val, fit, eff, self.yref_va)
-        return fit, pv, checks.mse(self.val, pv)
+        pv = self.cut_va(fitter.predict(self.val, fit, eff, a["yref_va"]))
+        return fit, pv, checks.mse(self.val_s, pv)
 
     def check_candidate(self, i, step, fit, pv, mse, eff):
         """The checks of library effect `i` added at greedy `step` (0-based).
@@ -286,18 +305,20 @@ class Diagnosis:
         ``passed``, ``identified``.
         """
         cur, lib, sigma2 = self.current, self.lib, self.sigma2
-        gc = (cur["mse"] - mse) / self.excess0 if self.excess0 > 0 else 0.0
+        # shares of the gap left by the nominal the effects are attributed on
+        ex = self.att["excess"]
+        gc = (cur["mse"] - mse) / ex if ex > 0 else 0.0
         if not math.isfinite(gc):
             gc = -math.inf  # diverged on the validation inputs
         k = len(lib[i].names) + len(lib[i].lin_names)
-        ntr = len(self.fitter.y)
+        ntr = len(self.att["fitter"].y)
         dbic = ntr * math.log(max(fit["rms"] ** 2, 1e-300) / cur["mse_tr"]) + k * math.log(ntr)
         out = {"gap_closed_step": gc if math.isfinite(gc) else None, "delta_bic": dbic,
                "material": bool(gc >= self.min_gap_closed * (1.0 if step == 0 else 0.5)
                                 and cur["mse"] - mse > 0.1 * sigma2)}
         if out["material"] and dbic < 0:
-            out["bootstrap"] = checks.bootstrap(self.val, cur["pred"], pv, sigma2, self.seed)
-            out["loro"] = checks.loro(self.fitter, cur["fit"], fit, cur["eff"], eff, self.yref_tr)
+            out["bootstrap"] = checks.bootstrap(self.val_s, cur["pred"], pv, sigma2, self.seed)
+            out["loro"] = checks.loro(self.att["fitter"], cur["fit"], fit, cur["eff"], eff, self.att["yref_tr"])
         passed = (out["material"] and dbic < 0 and out["bootstrap"]["p10"] > 0
                   and (out["loro"] is None or out["loro"]["pooled_ratio"] < 1.0))
         out["passed"] = bool(passed)
@@ -328,21 +349,25 @@ class Diagnosis:
                 "gap_closed": gcj if math.isfinite(gcj) else None,
                 "rms_validate": math.sqrt(r["mse"]) if math.isfinite(r["mse"]) else None,
                 "accepted": False,
-                "params": self.fitter.effect_params(r["fit"], r["eff"])[name],
+                "params": self.att["fitter"].effect_params(r["fit"], r["eff"])[name],
                 "checks": jsonable(r["checks"]),
             })
 
     def attribute(self):
-        """Greedy steps: add the best passing effect until none passes, the gap
-        reaches the noise floor or ``max_effects`` are accepted."""
+        """Greedy steps on the better nominal: add the best passing effect until
+        none passes, the gap reaches the noise floor or ``max_effects`` are accepted."""
         t0 = time.perf_counter()
         lib = self.lib
-        self.current = {"fit": self.base, "eff": [], "idx": [], "mse": self.mse0,
-                        "mse_tr": self.base["rms"] ** 2, "pred": self.p0_va}
+        a = self.att
+        self.current = {"fit": a["base"], "eff": [], "idx": [], "mse": a["mse"],
+                        "mse_tr": a["base"]["rms"] ** 2, "pred": a["pred"]}
         self.candidates, self.accepted = [], []
         self.steps = [{"label": "nominal", "rms_validate": math.sqrt(self.mse0)}]
+        if a["core"] == "reference":
+            self.steps.append({"label": "form", "rms_validate": math.sqrt(a["mse"])})
         pool = list(range(len(lib)))
         for step in range(self.max_effects):
+            # an effect is credited only for what the better nominal leaves
             if self.current["mse"] <= (1.0 + self.floor_tol) * self.sigma2 or not pool:
                 break
             results = self.try_candidates(step, pool, t0)
@@ -359,6 +384,53 @@ class Diagnosis:
             pool = selection.retry_pool(pool, lib, best["i"], self.candidates, self.accepted)
         self.timing["attribute_s"] = time.perf_counter() - t0
 
+    # -- the two nominals --------------------------------------------------
+
+    def form_stage(self):
+        """The reference nominal, FONBW's second chance and the form finding;
+        sets ``att``, the nominal the effects are attributed on."""
+        fm.fit_reference(self)
+        if not self.at_floor and fm.second_chance(self):
+            self.localize_residual()
+            self.form = fm.check_form(self)
+        else:
+            self.form = fm.check_form(self)
+        self.say(f"form: gap closed {self.form['gap_closed']}, "
+                 f"{'material' if self.form['material'] else 'not material'}")
+        if self.form["material"]:
+            zr = [np.zeros(len(r.u)) for r in self.train]
+            fc = Fitter(self.coarse, core=self.ref_core, skip=[int(math.ceil(b / self.q)) for b in self.skip_tr])
+            yref_tr = self.fitter_ref.predict(self.train, self.base_ref, [], zr)
+            yref_va = self.fitter_ref.predict(self.val, self.base_ref, [], [np.zeros(len(r.u)) for r in self.val])
+            # only the effects' own parameters are searched on the reference:
+            # a small global search suffices
+            self.att = {"core": "reference", "fitter": self.fitter_ref, "fitter_c": fc, "base": self.base_ref,
+                        "mse": self.mse_ref, "pred": self.pref_va, "yref_tr": yref_tr,
+                        "yref_c": [y[::self.q] for y in yref_tr], "yref_va": yref_va,
+                        "global_evals": min(self.global_evals, 120), "popsize": 8,
+                        "excess": self.mse_ref - self.sigma2}
+        else:
+            self.att = {"core": "fonbw", "fitter": self.fitter, "fitter_c": self.fitter_c, "base": self.base,
+                        "mse": self.mse0, "pred": self.p0_va, "yref_tr": self.yref_tr, "yref_c": self.yref_c,
+                        "yref_va": self.yref_va, "global_evals": self.global_evals, "popsize": 16,
+                        "excess": self.excess0}
+
+    def confirm(self):
+        """With effects accepted on the reference, the form must still beat FONBW + the same effects."""
+        if self.att["core"] != "reference" or not self.accepted:
+            return
+        cur = self.current
+        ok, fit, pv, mse = fm.confirm_form(self, cur["fit"], cur["eff"], cur["mse"])
+        self.form["confirmed_rms_fonbw_effects"] = math.sqrt(mse) if math.isfinite(mse) else None
+        if not ok:
+            # FONBW with the effects explains as much: the effects stand, the form does not
+            self.say("form not confirmed once the effects are added to FONBW")
+            self.form.update(material=False, where=None)
+            self.steps = [st for st in self.steps if st["label"] != "form"]
+            if mse < cur["mse"]:
+                self.current = {**cur, "fit": fit, "mse": mse, "pred": pv}
+                self.steps[-1]["rms_validate"] = math.sqrt(mse)
+
     # -- 4. verdict --------------------------------------------------------
 
     def result(self):
@@ -370,7 +442,8 @@ class Diagnosis:
         verdict = selection.verdict(
             self.accepted, self.candidates, mse0=self.mse0, mse=self.current["mse"], excess0=self.excess0,
             at_floor=self.at_floor, steps=self.steps, coverage=self.coverage,
-            params=self.fitter.effect_params(self.current["fit"], self.current["eff"]))
+            params=self.att["fitter"].effect_params(self.current["fit"], self.current["eff"]),
+            form=self.form, start=self.start_report())
         self.timing["total_s"] = time.perf_counter() - self.t_start
         given = self.model_given
         nominal = {
@@ -378,21 +451,46 @@ class Diagnosis:
             "rms_validate": math.sqrt(self.mse0),
             "rms_train": self.base["rms"],
             "noise_floor": math.sqrt(self.sigma2),
-            "given_model_rms_validate": (math.sqrt(checks.mse(self.val, [given.simulate(r.u, self.dt)
-                                                                          for r in self.val]))
-                                         if given is not None else None),
+            "given_model_rms_validate": (math.sqrt(checks.mse(self.val_s, self.cut_va(
+                [given.simulate(r.u, self.dt) for r in self.val]))) if given is not None else None),
+            "reference": self.ref_info,
+            "attributed_on": self.att["core"],
         }
-        records = {"train": [str(r.path) for r in self.train], "validate": [str(r.path) for r in self.val]}
+        records = {"train": [str(r.path) for r in self.train], "validate": [str(r.path) for r in self.val],
+                   "start": {k: [s.to_dict() for s in v] for k, v in self.starts.items()}}
         self.say(verdict["message"])
-        return DiagnosisResult(nominal, self.loc, self.candidates, verdict, self.timing, records,
-                               model=self.nominal)
+        out = DiagnosisResult(nominal, self.loc, self.candidates, verdict, self.timing, records,
+                              model=self.nominal)
+        out.loops = self.loops()
+        return out
+
+    def start_report(self):
+        """Per-record start states and whether any record needed a burn-in."""
+        mid = [(k, i) for k, v in self.starts.items() for i, s in enumerate(v) if not s.at_rest]
+        return {"mid_drive": bool(mid), "records": {k: [s.to_dict() for s in v] for k, v in self.starts.items()},
+                "message": ("records starting mid-drive: their start-up transients are burned in and not "
+                            "attributed" if mid else "every record starts at rest")}
+
+    def loops(self):
+        """Validation inputs [V] with the FONBW and reference residuals [µm] (the report's loop plot)."""
+        return {"u": [r.u for r in self.val_s], "fonbw": [r.y - p for r, p in zip(self.val_s, self.p0_va)],
+                "reference": [r.y - p for r, p in zip(self.val_s, self.pref_va)]}
 
     def run(self):
         """All stages; returns the :class:`DiagnosisResult`."""
         self.fit_nominal()
         self.localize_residual()
+        self.form_stage()
         self.attribute()
+        self.confirm()
         return self.result()
+
+
+def _cut(rec, b):
+    """`rec` without its first `b` samples (the part that is scored)."""
+    if b <= 0:
+        return rec
+    return Record(t=rec.t[b:], u=rec.u[b:], y=rec.y[b:], dt=rec.dt, path=rec.path)
 
 
 def _as_records(recs, what):

@@ -121,25 +121,29 @@ def loro(fitter, fit_base, fit_eff, eff_base, eff_new, yrefs):
     o1 = fitter.outer(eff_new, [t[None, :] for t in fit_eff["th"]], 0)
     lens = [len(r.y) for r in recs]
     bounds = np.cumsum([0] + lens)
+    y = fitter.y_all
+    # samples of a burn-in are never fitted nor scored
+    keep = fitter.keep if fitter.keep is not None else np.ones(bounds[-1], dtype=bool)
     ratios, tot = [], [0.0, 0.0]
     for i in range(len(recs)):
-        m = np.ones(bounds[-1], dtype=bool)
+        m = keep.copy()
         m[bounds[i]:bounds[i + 1]] = False
         # the held-out record is scored only over the time the other records
         # span: agreement of the parameters, not extrapolation in time (a
         # drift fitted on 3 s says little about second 8)
         k = min(lens[i], max(lens[j] for j in range(len(recs)) if j != i))
         held = np.arange(bounds[i], bounds[i] + k)
+        held = held[keep[held]]
         # ... and over the displacements they span: a stroke limit that only
         # one record reaches cannot be checked for agreement by the others
-        yo = fitter.y[m]
-        held = held[(fitter.y[held] >= yo.min()) & (fitter.y[held] <= yo.max())]
+        yo = y[m]
+        held = held[(y[held] >= yo.min()) & (y[held] <= yo.max())]
         if held.size == 0:
             continue
         out = []
         for A, o in ((A0, o0), (A1, o1)):
-            b, _ = fitter.fit_linear(A[m], fitter.y[m], o)
-            r = fitter.y[held] - fitter.output(A[held], b, o)
+            b, _ = fitter.fit_linear(A[m], y[m], o)
+            r = y[held] - fitter.output(A[held], b, o)
             out.append(float(np.mean(r * r)))
         ratios.append(out[1] / out[0] if out[0] > 0 else 1.0)
         tot[0] += out[0] * held.size

@@ -36,11 +36,11 @@ from scipy.signal import lfilter
 
 from .. import plant as _plant
 
-__all__ = ["Effect", "Creep", "Dynamics", "Amplifier", "Delay", "Drift", "Saturation",
+__all__ = ["Effect", "Creep", "Dynamics", "Amplifier", "Delay", "Drift", "Saturation", "Clip",
            "library", "EFFECTS"]
 
 #: Names of the library's effect blocks, in the order they are tried.
-EFFECTS = ("creep", "dynamics", "amplifier", "delay", "drift", "saturation")
+EFFECTS = ("creep", "dynamics", "amplifier", "delay", "drift", "saturation", "clip")
 
 
 class Effect:
@@ -357,6 +357,42 @@ class Saturation(Effect):
         return self.shape(ctx["y_ref"], th)[0][:, None]
 
 
+class Clip(Effect):
+    """The amplifier's upper rail: the voltage is limited smoothly at a level [V] before the hysteresis.
+
+    v = L + ((u − L) − sqrt((u − L)² + k²)) / 2, the hyperbolic smooth
+    minimum of the command u and the rail L with a knee of width k [V]: v
+    follows u well below the rail (v − u ≈ −k²/(4 (L − u))), is L − k/2 at
+    u = L and tends to L above it. On the input side, so the core's memory
+    turns at the rail: a descending branch starts from the clipped voltage,
+    which an output saturation cannot express. A level above every command
+    switches the block off. Drives never go below 0 V, so only the upper
+    rail is modelled.
+    """
+
+    name = "clip"
+    names = ("level", "knee")
+    units = {"level": "V", "knee": "V"}
+    input_side = True
+
+    def __init__(self, U):
+        super().__init__()
+        self.U = float(U)
+        self.bounds = [(0.4 * U, 1.1 * U), (1e-3 * U, 0.05 * U)]
+        self.log_scale = [False, True]
+        levels = np.r_[np.linspace(0.6 * U, 1.0 * U, 11), 1.1 * U]
+        self.grid = np.array([(a, b) for a in levels for b in (0.003 * U, 0.015 * U)])
+
+    def identified(self, th):
+        # a rail above every command the records reach is no rail
+        return bool(th[0] < self.U)
+
+    def transform_input(self, u, dt, th):
+        L, k = float(th[0]), float(th[1])
+        d = np.asarray(u, dtype=float) - L
+        return L + 0.5 * (d - np.sqrt(d * d + k * k))
+
+
 def library(dt, U, t_max, names=EFFECTS, y_range=(0.0, 1.0)):
     """The candidate blocks for records with step `dt` [s], max |u| `U` [V], longest
     record `t_max` [s] and measured displacements within `y_range` [µm].
@@ -371,6 +407,7 @@ def library(dt, U, t_max, names=EFFECTS, y_range=(0.0, 1.0)):
         "delay": lambda: Delay(dt),
         "drift": lambda: Drift(),
         "saturation": lambda: Saturation(*y_range),
+        "clip": lambda: Clip(U),
     }
     out = []
     for n in names:

@@ -20,6 +20,7 @@ from .. import hysteresis as hyst
 from ..de import jde_minimize
 from ..io import Record
 from ..io import decimate as io_decimate
+from .cores import FonbwCore
 
 __all__ = ["KIND", "Fitter", "simulate_rows", "x_from_model", "decimate"]
 
@@ -50,23 +51,36 @@ class Fitter:
         Order of g(u), eq. (10).
     memory : str
         GL memory engine.
+    core : FonbwCore or ReferenceCore, optional
+        The nominal hysteresis (:mod:`fonbw.gap.cores`); default the FONBW
+        core of `space`.
+    skip : sequence of int, optional
+        Leading samples of each record left out of every fit and score (a
+        burn-in, :func:`fonbw.start.start_state`); the model still runs
+        through them.
     """
 
-    def __init__(self, records, space, N=3, memory="fast"):
+    def __init__(self, records, space=None, N=3, memory="fast", core=None, skip=None):
         self.records = records
         self.space = space
         self.N = N
         self.memory = memory
+        self.core = core if core is not None else FonbwCore(space, N, memory)
         self.dt = records[0].dt
         self.pnames = hyst.param_names(KIND, N)
-        self.y = np.concatenate([r.y for r in records])
-        self.nx = len(space.names)
+        self.y_all = np.concatenate([r.y for r in records])
+        self.keep = None
+        if skip is not None and any(int(b) > 0 for b in skip):
+            self.keep = np.concatenate([np.arange(len(r.y)) >= int(b) for r, b in zip(records, skip)])
+        # y: the samples every fit and score uses
+        self.y = self.y_all if self.keep is None else self.y_all[self.keep]
+        self.nx = self.core.nx
+
+    def rows(self, A):
+        """The rows of a design matrix over all samples that the fits use."""
+        return A if self.keep is None else A[self.keep]
 
     # -- design -----------------------------------------------------------
-
-    def _theta(self, X):
-        p = self.space.basis_params(np.atleast_2d(X))
-        return np.column_stack([np.asarray(p[k], dtype=float) for k in self.pnames])
 
     def design(self, records, X, effects, TH, yrefs):
         """Regressor matrices, one (n_total, q) array per candidate row.
@@ -77,13 +91,15 @@ class Fitter:
         """
         X = np.atleast_2d(X)
         P = X.shape[0]
-        theta = self._theta(X)
         inp = [(e, th) for e, th in zip(effects, TH) if e.input_side]
         # rows that share X and input-side parameters share one simulation
         key = np.hstack([X] + [th for _, th in inp]) if inp else X
-        uniq, inv = np.unique(key, axis=0, return_inverse=True)
-        inv = np.ravel(inv)
-        first = np.array([int(np.flatnonzero(inv == j)[0]) for j in range(len(uniq))])
+        if key.shape[1] == 0:
+            first, inv = np.zeros(1, dtype=int), np.zeros(P, dtype=int)
+        else:
+            uniq, inv = np.unique(key, axis=0, return_inverse=True)
+            inv = np.ravel(inv)
+            first = np.array([int(np.flatnonzero(inv == j)[0]) for j in range(len(uniq))])
         mats = [[] for _ in range(P)]
         for rec, yref in zip(records, yrefs):
             n = len(rec.u)
@@ -93,26 +109,20 @@ class Fitter:
                 for e, th in inp:
                     u = e.transform_input(u, rec.dt, th[p])
                 Us[j] = u
-            if inp:
-                S = simulate_rows(theta[first], Us, rec.dt, self.memory, self.N)
-            else:
-                S = hyst.simulate_population(KIND, theta[first], rec.u, rec.dt, memory=self.memory, N=self.N)
+            B = self.core.base(rec, X[first], Us, bool(inp))
             ctx = {"t": np.arange(n) * rec.dt, "y_ref": yref, "dt": rec.dt}
             # regressors of blocks without nonlinear parameters are the same for every row
             fixed = {id(e): e.columns(ctx, ()) for e in effects if not e.names}
             for p in range(P):
-                j = inv[p]
-                F = self.space.fixed_columns(Us[j]).T  # (N, n)
-                M = np.vstack([F, S[j][None, :]])
-                filt, plain, last = [M], [], []
+                filt, plain, last = [B[inv[p]]], [], []
                 for e, th in zip(effects, TH):
                     C = fixed[id(e)] if id(e) in fixed else e.columns(ctx, th[p])
                     if C is not None:
                         (last if e.output_nonlinear else filt if e.filtered_columns else plain).append(C.T)
-                M = np.vstack(filt)
+                M = np.vstack(filt) if len(filt) > 1 else filt[0]
                 for e, th in zip(effects, TH):
                     M = e.output_op(M, rec.dt, th[p])
-                mats[p].append(np.vstack([M] + plain + last))
+                mats[p].append(np.vstack([M] + plain + last) if plain or last else M)
         return [np.hstack(m).T for m in mats]
 
     def lin_slices(self, effects):
@@ -121,7 +131,7 @@ class Fitter:
         The column order of :meth:`design`: the base columns (N + 1), the
         filtered regressors, the plain ones, the output nonlinearity last.
         """
-        k = self.N + 1
+        k = self.core.n_base
         out = [None] * len(effects)
         groups = ([i for i, e in enumerate(effects) if e.filtered_columns and not e.output_nonlinear],
                   [i for i, e in enumerate(effects) if not e.filtered_columns and not e.output_nonlinear],
@@ -226,7 +236,7 @@ class Fitter:
         """Training RMS [µm] of each candidate row (inf for divergent rows)."""
         out = np.full(np.atleast_2d(X).shape[0], np.inf)
         for p, A in enumerate(self.design(self.records, X, effects, TH, yrefs)):
-            b, r = self.fit_linear(A, self.y, self.outer(effects, TH, p))
+            b, r = self.fit_linear(self.rows(A), self.y, self.outer(effects, TH, p))
             if b is not None:
                 out[p] = math.sqrt(float(np.mean(r * r)))
         return out
@@ -277,8 +287,8 @@ class Fitter:
             c = self.cost(X, effects, TH, yrefs)
             nfev += len(G)
             th0[new] = G[int(np.argmin(c))]
-        bounds = list(_nominal_bounds(self.space, x0)) if local else [tuple(b) for b in self.space.bounds]
-        logs = list(self.space.log_scale)
+        bounds = list(self.core.local_bounds(x0)) if local else list(self.core.bounds)
+        logs = list(self.core.log_scale)
         for e in effects:
             bounds += e.bounds
             logs += e.log_scale
@@ -293,16 +303,17 @@ class Fitter:
             max_evals, polish = popsize + int(evals), int(evals)
         else:
             max_evals, polish = int(evals), int(evals) // 5
-        res = jde_minimize(fun, bounds, log_scale=logs, popsize=popsize, max_evals=max_evals,
-                           polish=True, polish_maxfev=polish, seed=seed, x0=z0)
-        nfev += res.nfev
-        z = res.x
-        f0 = float(fun(z0[None, :])[0])
-        if not res.fun <= f0:
-            z = z0
+        z = z0
+        if bounds:  # nothing to search on a reference core without nonlinear effect parameters
+            res = jde_minimize(fun, bounds, log_scale=logs, popsize=popsize, max_evals=max_evals,
+                               polish=True, polish_maxfev=polish, seed=seed, x0=z0)
+            nfev += res.nfev
+            f0 = float(fun(z0[None, :])[0])
+            if res.fun <= f0:
+                z = res.x
         X, TH = self.split(z, effects)
         A = self.design(self.records, X, effects, TH, yrefs)[0]
-        beta, r = self.fit_linear(A, self.y, self.outer(effects, TH, 0))
+        beta, r = self.fit_linear(self.rows(A), self.y, self.outer(effects, TH, 0))
         return {"x": X[0], "th": [t[0] for t in TH], "beta": beta,
                 "rms": math.sqrt(float(np.mean(r * r))) if beta is not None else math.inf,
                 "nfev": nfev + 1}
@@ -320,7 +331,7 @@ class Fitter:
         return out
 
     def model(self, fit):
-        """The FONBW model (natural parameters) of a fitted configuration."""
+        """The FONBW model (natural parameters) of a fitted configuration (FONBW core only)."""
         c = fit["beta"][:self.N]
         G = float(fit["beta"][self.N])
         p = self.space.final_params(fit["x"], c, G)
@@ -332,17 +343,6 @@ class Fitter:
         for e, th, sl in zip(effects, fit["th"], self.lin_slices(effects)):
             out[e.name] = e.describe(th, fit["beta"][sl])
         return out
-
-
-def _nominal_bounds(space, x0):
-    """A box around the nominal search vector (the refit is local)."""
-    for (lo, hi), lg, v in zip(space.bounds, space.log_scale, x0):
-        if lg:
-            a, b = v / 10 ** 0.5, v * 10 ** 0.5
-        else:
-            w = 0.15 * (hi - lo)
-            a, b = v - w, v + w
-        yield (max(lo, min(a, v)), min(hi, max(b, v)))
 
 
 def x_from_model(model, space):

@@ -65,7 +65,8 @@ def retry_pool(pool, lib, chosen, candidates, accepted):
     return [i for i in pool if i != chosen and lib[i].name in helped]
 
 
-def verdict(accepted, candidates, *, mse0, mse, excess0, at_floor, steps, coverage, params):
+def verdict(accepted, candidates, *, mse0, mse, excess0, at_floor, steps, coverage, params,
+            form=None, start=None):
     """The verdict of a diagnosis.
 
     Parameters
@@ -75,39 +76,56 @@ def verdict(accepted, candidates, *, mse0, mse, excess0, at_floor, steps, covera
     candidates : list of dict
         First-step candidates (``effect``, ``gap_closed``).
     mse0, mse : float
-        Validation MSE [µm²] of the nominal model and with the accepted effects.
+        Validation MSE [µm²] of the nominal FONBW and of the final model (the
+        better nominal with the accepted effects).
     excess0 : float
         MSE0 − σ² [µm²].
     at_floor : bool
         The nominal gap is at the noise floor.
     steps, coverage, params
-        Reported as they are (waterfall, coverage flags, effect parameters).
+        Reported as they are (steps of the waterfall, coverage flags, effect parameters).
+    form : dict, optional
+        The hysteresis-form finding (``material``, ``gap_closed``, ``where``, …).
+    start : dict, optional
+        How the records start (burn-ins).
 
     Returns
     -------
     dict
-        ``effects``, ``gap_closed``, ``unexplained``, ``at_noise_floor``,
-        ``steps``, ``coverage``, ``params``, ``message``.
+        ``effects``, ``gap_closed`` (by form and effects together),
+        ``unexplained``, ``at_noise_floor``, ``steps``, ``waterfall``,
+        ``form``, ``start``, ``coverage``, ``params``, ``message``.
     """
     total = (mse0 - mse) / excess0 if excess0 > 0 and not at_floor else 0.0
     # strongest first: by what each accepted effect closes on its own
     alone = {c["effect"]: (c["gap_closed"] if c["gap_closed"] is not None else -math.inf) for c in candidates}
     accepted = sorted(accepted, key=lambda e: -alone.get(e, -math.inf))
+    form = dict(form or {"material": False, "gap_closed": None, "where": None})
+    form_named = bool(form.get("material")) and not at_floor
+    form["material"] = form_named
     out = {
         "effects": [] if at_floor else accepted,
         "gap_closed": float(total),
         "unexplained": bool(not at_floor and total < 0.5),
         "at_noise_floor": bool(at_floor),
         "steps": steps,
+        "waterfall": [{"step": st["label"], "rms_validate": st["rms_validate"],
+                       "gap_closed_cum": (float((mse0 - st["rms_validate"] ** 2) / excess0)
+                                          if excess0 > 0 else 0.0)} for st in steps],
+        "form": form,
+        "start": start,
         "coverage": coverage,
         "params": params,
     }
+    named = (["the hysteresis form"] if form_named else []) + out["effects"]
     if at_floor:
         out["message"] = "the nominal model's gap is at the noise floor: no effect is named"
-    elif not accepted:
-        out["message"] = "unexplained: no candidate effect closes the gap"
+    elif not named:
+        out["message"] = "unexplained: neither the hysteresis form nor a candidate effect closes the gap"
     elif out["unexplained"]:
-        out["message"] = f"partly explained by {', '.join(accepted)}; most of the gap is unexplained"
+        out["message"] = f"partly explained by {', '.join(named)}; most of the gap is unexplained"
     else:
-        out["message"] = f"explained by {', '.join(accepted)}"
+        out["message"] = f"explained by {', '.join(named)}"
+    if start and start.get("mid_drive"):
+        out["message"] += "; " + start["message"]
     return out

@@ -1,0 +1,132 @@
+"""Nominal hysteresis cores of the joint refit: FONBW and the reference.
+
+A core gives the :class:`fonbw.gap.fitter.Fitter` its *base columns*: the
+regressors of the hysteresis whose weights are solved linearly, for one
+record's (possibly transformed) input and one row of the core's nonlinear
+search vector X. Every effect block of :mod:`fonbw.gap.effects` composes
+with either core in the same four ways (input-side transforms re-run the
+core; linear output operators filter every base column; additive regressors
+and the output nonlinearity are appended).
+
+:class:`FonbwCore`
+    X = identify's search vector (ρ, σ^(1/n)ρ, n, λ1, λ2); base columns
+    (u/U)^1..N and the simulated ħ (eqs. 9-11).
+:class:`ReferenceCore`
+    the generalized Prandtl–Ishlinskii reference of :mod:`fonbw.gap.reference`
+    with its rate parameters θ fixed (fitted once by
+    :func:`fonbw.gap.form.fit_reference`) and its *active set* fixed: the
+    columns with a positive weight in its bounded fit (and the free ones).
+    On the active set the bounded optimum is the unconstrained least-squares
+    solution, so the refit solves plain least squares. X is empty; Φ of a
+    record is built once and cached unless an input-side effect changes
+    the input.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import hysteresis as hyst
+
+__all__ = ["FonbwCore", "ReferenceCore", "KIND"]
+
+KIND = "fonbw"
+
+
+class FonbwCore:
+    """The nominal FONBW core (the search space of :func:`fonbw.identify.search_space`).
+
+    Parameters
+    ----------
+    space : fonbw.identify.SearchSpace
+    N : int
+        Order of g(u), eq. (10).
+    memory : str
+        GL memory engine.
+    """
+
+    name = "fonbw"
+
+    def __init__(self, space, N=3, memory="fast"):
+        self.space, self.N, self.memory = space, N, memory
+        self.pnames = hyst.param_names(KIND, N)
+        self.nx = len(space.names)
+        self.n_base = N + 1
+        self.bounds = [tuple(b) for b in space.bounds]
+        self.log_scale = list(space.log_scale)
+
+    def theta(self, X):
+        """Natural basis parameter rows (P, d) of search rows X (P, nx)."""
+        p = self.space.basis_params(np.atleast_2d(X))
+        return np.column_stack([np.asarray(p[k], dtype=float) for k in self.pnames])
+
+    def local_bounds(self, x0):
+        """A box around `x0` (±0.5 decade for log variables, ±15 % of the range otherwise)."""
+        out = []
+        for (lo, hi), lg, v in zip(self.bounds, self.log_scale, x0):
+            if lg:
+                a, b = v / 10 ** 0.5, v * 10 ** 0.5
+            else:
+                w = 0.15 * (hi - lo)
+                a, b = v - w, v + w
+            out.append((max(lo, min(a, v)), min(hi, max(b, v))))
+        return out
+
+    def base(self, rec, X, Us, transformed):
+        """Base columns (J, N + 1, n) of search rows X (J, nx) on inputs Us (J, n) [V]."""
+        theta = self.theta(X)
+        if transformed:
+            S = hyst.simulate_population(KIND, theta, np.ascontiguousarray(Us, dtype=float), rec.dt,
+                                         memory=self.memory, N=self.N)
+        else:
+            S = hyst.simulate_population(KIND, theta, rec.u, rec.dt, memory=self.memory, N=self.N)
+        S = np.atleast_2d(S)
+        return [np.vstack([self.space.fixed_columns(Us[j]).T, S[j][None, :]]) for j in range(len(Us))]
+
+
+class ReferenceCore:
+    """The reference hysteresis as a nominal core (θ and the active set fixed).
+
+    Parameters
+    ----------
+    reference : fonbw.gap.reference.ReferenceHysteresis
+        With its grid sized (``u_range`` set).
+    theta : sequence of float
+        Rate parameters (``reference.theta_names``).
+    active : ndarray of bool, optional
+        Columns kept (default: all).
+    """
+
+    name = "reference"
+    nx = 0
+    bounds: list = []
+    log_scale: list = []
+
+    def __init__(self, reference, theta=(), active=None):
+        self.ref = reference
+        self.theta_ = tuple(float(t) for t in theta)
+        self.active = (np.ones(reference.n_columns, dtype=bool) if active is None
+                       else np.asarray(active, dtype=bool))
+        self.n_base = int(self.active.sum())
+        self._cache = {}
+
+    @property
+    def n_params(self) -> int:
+        """Parameters a reference fit spends (active weights and θ), for the BIC."""
+        return self.n_base + len(self.theta_)
+
+    def local_bounds(self, x0):
+        return []
+
+    def phi(self, u, dt):
+        """Active columns (q, n) of the reference on input `u` [V] at step `dt` [s]."""
+        return np.ascontiguousarray(self.ref.columns(u, dt, self.theta_)[:, self.active].T)
+
+    def base(self, rec, X, Us, transformed):
+        """Base columns (J, q, n); one Φ per record while the input is the record's own."""
+        if transformed:
+            return [self.phi(Us[j], rec.dt) for j in range(len(Us))]
+        key = (id(rec.u), len(rec.u), rec.dt)
+        if key not in self._cache:
+            # the cache keeps the record's input alive, so its id stays unique
+            self._cache[key] = (rec.u, self.phi(rec.u, rec.dt))
+        return [self._cache[key][1]] * len(Us)

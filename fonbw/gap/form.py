@@ -1,0 +1,193 @@
+"""The hysteresis-form layer of the gap diagnosis.
+
+No real actuator is exactly a FONBW. The part of the gap that no FONBW
+reaches but the flexible reference hysteresis of :mod:`fonbw.gap.reference`
+does is the *form*: reported as its own finding, never as an effect, so that
+effect blocks are not credited with loop-shape error. The stages here act on
+a :class:`fonbw.gap.attribute.Diagnosis` ``d``:
+
+:func:`fit_reference`
+    the reference nominal (rate variant "both"): θ searched on the decimated
+    training records, weights by bounded least squares at the full rate,
+    then the active set fixed (:class:`fonbw.gap.cores.ReferenceCore`).
+:func:`second_chance`
+    when the reference beats FONBW, a longer FONBW identification from
+    another seed: an identification that stopped early is neither a form
+    error nor an effect.
+:func:`check_form`
+    gap_closed_form = (MSE_FONBW − MSE_ref) / (MSE_FONBW − σ²) on the
+    validation records, material like an effect (share ≥ ``min_gap_closed``,
+    ΔBIC < 0 on training with the reference's parameter count, Bayesian
+    block bootstrap p10 > 0), with :func:`where` on the loop.
+:func:`confirm_form`
+    with effects S accepted on the reference, FONBW + S is refit: the form
+    stays material only if MSE(FONBW + S) − MSE(ref + S) is still material.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from ..de import jde_minimize
+from . import checks
+from .cores import ReferenceCore
+from .fitter import Fitter
+from .localize import _features, branch, reversal_age
+from .reference import ReferenceHysteresis
+
+__all__ = ["fit_reference", "second_chance", "check_form", "confirm_form", "where"]
+
+
+def _stack(ref, recs, theta, skip):
+    Phi = np.concatenate([ref.columns(r.u, r.dt, theta)[int(b):] for r, b in zip(recs, skip)])
+    y = np.concatenate([r.y[int(b):] for r, b in zip(recs, skip)])
+    return Phi, y
+
+
+def _search_theta(ref, recs, skip, seed, evals):
+    """θ of the rate variant on (decimated) records, by variable projection."""
+    def cost(X):
+        out = np.empty(len(X))
+        for i, th in enumerate(X):
+            out[i] = ref.solve(*_stack(ref, recs, th, skip))[1]
+        return out
+
+    x0 = [math.sqrt(lo * hi) if lg else 0.5 * (lo + hi) for (lo, hi), lg in zip(ref.theta_bounds, ref.theta_log)]
+    res = jde_minimize(cost, ref.theta_bounds, log_scale=ref.theta_log, seed=seed, max_evals=int(evals),
+                       popsize=8, x0=x0)
+    return tuple(float(a) for a in res.x), float(res.fun)
+
+
+def fit_reference(d, evals=40):
+    """Fit the reference nominal; sets ``d.ref_core``, ``d.fitter_ref``, ``d.base_ref``,
+    ``d.pref_va`` (validation predictions, burn-in cut), ``d.mse_ref``, ``d.ref_info``."""
+    t0 = time.perf_counter()
+    skip_c = [int(math.ceil(b / d.q)) for b in d.skip_tr]
+    # the initial play state that suits the records (virgin or after a descent), rate-free
+    best = None
+    for init in ("rest", "descended"):
+        ref = ReferenceHysteresis(rate="both", initial=init).with_range(d.train)
+        rss = ref.solve(*_stack(ref, d.coarse, (1e-7, 0.5), skip_c))[1]
+        if best is None or rss < best[1]:
+            best = (ref, rss)
+    ref = best[0]
+    theta, _ = _search_theta(ref, d.coarse, skip_c, d.seed, evals)
+    c, _ = ref.solve(*_stack(ref, d.train, theta, d.skip_tr))
+    lo = ref.bounds[0]
+    # the bounded optimum is the unconstrained one on the columns it leaves free
+    active = (c > lo) | ~np.isfinite(lo)
+    d.ref_core = ReferenceCore(ref, theta, active)
+    d.fitter_ref = Fitter(d.train, core=d.ref_core, skip=d.skip_tr)
+    zero = [np.zeros(len(r.u)) for r in d.train]
+    d.base_ref = d.fitter_ref.refit([], np.zeros(0), [], zero, evals=0)
+    d.pref_va = d.cut_va(d.fitter_ref.predict(d.val, d.base_ref, [], [np.zeros(len(r.u)) for r in d.val]))
+    d.mse_ref = checks.mse(d.val_s, d.pref_va)
+    d.ref_info = {"theta": dict(zip(ref.theta_names, theta)), "initial": ref.initial,
+                  "n_active": int(active.sum()), "n_columns": int(ref.n_columns),
+                  "rms_train": d.base_ref["rms"], "rms_validate": math.sqrt(d.mse_ref)}
+    d.timing["reference_s"] = time.perf_counter() - t0
+    d.say(f"reference fitted in {d.timing['reference_s']:.1f} s: train rms {d.base_ref['rms']:.4g} µm, "
+          f"validation rms {math.sqrt(d.mse_ref):.4g} µm ({int(active.sum())} active columns)")
+
+
+def second_chance(d):
+    """A longer FONBW identification when the reference beats the nominal.
+
+    Another seed and 1.5 × the budget; the better of the two on the training
+    records becomes the nominal (``d.fit_nominal_from``). Returns True when
+    the nominal changed.
+    """
+    from ..identify import identify
+
+    if not d.mse_ref < d.mse0 - max(0.1 * d.sigma2, 0.5 * d.min_gap_closed * d.excess0):
+        return False
+    t0 = time.perf_counter()
+    res = identify(d.coarse, "fonbw", seed=d.seed + 7919, max_evals=int(1.5 * d.budget), N=d.N,
+                   memory=d.memory)
+    x1 = np.asarray(res.search["x"], dtype=float)
+    zero = [np.zeros(len(r.u)) for r in d.train]
+    fit = d.fitter.refit([], x1, [], zero, evals=d.refit_evals, seed=d.seed)
+    changed = fit["rms"] < d.base["rms"]
+    if changed:
+        d.set_nominal(fit)
+    d.timing["second_chance_s"] = time.perf_counter() - t0
+    d.say(f"second FONBW identification: train rms {fit['rms']:.4g} µm "
+          f"({'taken' if changed else 'kept the first'}, {d.timing['second_chance_s']:.1f} s)")
+    return changed
+
+
+def check_form(d):
+    """The form finding (dict) of the reference against the FONBW nominal."""
+    ex = d.excess0
+    gc = (d.mse0 - d.mse_ref) / ex if ex > 0 else 0.0
+    ntr = len(d.fitter.y)
+    k_fonbw = d.fitter.nx + d.N + 1
+    dbic = (ntr * math.log(max(d.base_ref["rms"] ** 2, 1e-300) / max(d.base["rms"] ** 2, 1e-300))
+            + (d.ref_core.n_params - k_fonbw) * math.log(ntr))
+    material = bool(not d.at_floor and gc >= d.min_gap_closed and d.mse0 - d.mse_ref > 0.1 * d.sigma2)
+    boot = checks.bootstrap(d.val_s, d.p0_va, d.pref_va, d.sigma2, d.seed) if material and dbic < 0 else None
+    passed = bool(material and dbic < 0 and boot["p10"] > 0)
+    out = {"material": passed, "gap_closed": float(gc) if math.isfinite(gc) else None,
+           "delta_bic": float(dbic), "bootstrap": boot, "reference": d.ref_info,
+           "where": where(d.val_s, d.p0_va, d.pref_va, d.dt) if passed else None}
+    return out
+
+
+def confirm_form(d, fit_ref_s, eff, mse_ref_s):
+    """Is the form still material once the accepted effects are added to both nominals?
+
+    Refits FONBW + `eff` locally from the FONBW nominal (the effects' parameters
+    from the reference's fit). Returns (material, fit, validation predictions, MSE).
+    """
+    zero_tr = d.yref_tr
+    fit = d.fitter.refit(eff, d.base["x"], fit_ref_s["th"], zero_tr, evals=d.refit_evals, seed=d.seed)
+    pv = d.cut_va(d.fitter.predict(d.val, fit, eff, d.yref_va))
+    mse = checks.mse(d.val_s, pv)
+    gap = mse - mse_ref_s
+    ok = bool(gap >= 0.5 * d.min_gap_closed * d.excess0 and gap > 0.1 * d.sigma2)
+    return ok, fit, pv, mse
+
+
+def where(records, p0, p1, dt, n_bins=8):
+    """Where on the loop the form's correction δ = p1 − p0 [µm] concentrates.
+
+    Returns ``dominant`` (the localization feature with the largest η² of δ:
+    input_rate, amplitude, branch, time_since_reversal), ``eta2`` per
+    feature, the shares of Σδ² in the ``top`` and ``bottom`` fifth of the
+    input range, in ``minor_loops`` (branches spanning under half the range)
+    and ``rms_um`` (RMS of δ).
+    """
+    delta = np.concatenate([b - a for a, b in zip(p0, p1)])
+    u = np.concatenate([r.u for r in records])
+    rate = np.concatenate([np.abs(np.gradient(r.u, dt)) for r in records])
+    br = np.concatenate([branch(r.u) for r in records])
+    age = np.concatenate([reversal_age(r.u, dt) for r in records])
+    feats = _features(delta, rate, u, br, age, dt, n_bins)
+    eta = {k: float(v["eta2"]) for k, v in feats.items()}
+    e2 = delta * delta
+    tot = float(e2.sum()) or 1.0
+    lo, hi = float(u.min()), float(u.max())
+    span = hi - lo or 1.0
+    minor = np.concatenate([_minor(r.u, span) for r in records])
+    return {"dominant": max(eta, key=eta.get), "eta2": eta,
+            "top": float(e2[u >= hi - 0.2 * span].sum() / tot),
+            "bottom": float(e2[u <= lo + 0.2 * span].sum() / tot),
+            "minor_loops": float(e2[minor].sum() / tot), "rms_um": float(np.sqrt(np.mean(e2)))}
+
+
+def _minor(u, span):
+    """Samples on branches that span less than half the input range `span` [V]."""
+    br = branch(u)
+    moving = np.flatnonzero(br != 0)
+    out = np.zeros(len(u), dtype=bool)
+    if moving.size == 0:
+        return out
+    # branch boundaries: where the moving direction changes
+    s = br[moving]
+    cuts = moving[np.flatnonzero(np.diff(s) != 0) + 1]
+    edges = np.r_[0, cuts, len(u)]
+    for a, b in zip(edges[:-1], edges[1:]):
+        out[a:b] = np.ptp(u[a:b]) < 0.5 * span
+    return out
