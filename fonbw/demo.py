@@ -266,6 +266,15 @@ def _cosim_sections(res):
     return secs
 
 
+def _form_text(form):
+    """One phrase on the hysteresis-form finding of a gap verdict."""
+    if not form or form.get("gap_closed") is None:
+        return "not assessed"
+    where = (form.get("where") or {}).get("dominant")
+    return (f"{'material' if form.get('material') else 'not material'} (the reference hysteresis closes "
+            f"{form['gap_closed']:.3g} of the gap{', mostly in ' + where if where and form.get('material') else ''})")
+
+
 def _gap_sections(out_dir, bench, res):
     secs = []
     gap = res["gap"]
@@ -277,12 +286,19 @@ def _gap_sections(out_dir, bench, res):
                 + md_table(["effect", "gap closed", "accepted"],
                            [[c["effect"], c["gap_closed"], "yes" if c.get("accepted") else "no"]
                             for c in gap["candidates"]])
-                + f"\n\n**Verdict**: effects {', '.join(v['effects']) or 'none'}; gap closed {v['gap_closed']:.3g}; "
+                + f"\n\n**Verdict**: {v.get('message', '')}. Hysteresis form: "
+                + _form_text(v.get("form"))
+                + f"; unmodelled effects {', '.join(v['effects']) or 'none'}; gap closed by both {v['gap_closed']:.3g}; "
                 + ("unexplained part remains." if v.get("unexplained") else "explained.")
+                + "\n\n" + md_table(["step", "validation RMS [µm]", "gap closed (cumulative)"],
+                                     [[w["step"], w["rms_validate"], w["gap_closed_cum"]]
+                                      for w in v.get("waterfall", [])])
                 + f"\n\nThe bench's own settings: creep = {bench.creep}, dynamics = {bench.dynamics}, "
                 f"amplifier = {bench.amplifier} (the diagnosis was not told).\n\nFull diagnosis: `gap/gap_report.html`.")
-        secs.append(Section("Sim-to-real gap", "Where the identified FONBW model misses the bench, which "
-                            "unmodelled effect causes it and how far adding it closes the gap.", body,
+        secs.append(Section("Sim-to-real gap", "Where the identified FONBW model misses the bench, how much "
+                            "of it is the hysteresis form (what no FONBW reaches but a reference hysteresis "
+                            "does), which unmodelled effect causes the rest and how far adding it closes the "
+                            "gap.", body,
                             [(p, "Gap closed per candidate effect.") for p in _gap_figures(gap, d)]))
     return secs
 

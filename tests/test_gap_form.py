@@ -44,3 +44,68 @@ def test_start_held_input_but_moving_output_is_not_at_rest():
     s = start_state(_rec(u, y))
     assert not s.at_rest and s.burn_in > 20
     assert s.to_dict()["burn_in"] == s.burn_in
+
+
+# ---------------------------------------------------------------------------
+# the reference as a nominal core of the joint refit
+
+
+def _pi_records(dt=1e-3):
+    from fonbw.gap.reference import play_bank
+
+    out = []
+    for i, (f, T) in enumerate(((0.5, 6.0), (1.3, 4.0))):
+        t = np.arange(int(T / dt)) * dt
+        u = 60.0 - 60.0 * np.cos(2 * np.pi * f * t) * np.exp(-0.1 * t)
+        z = play_bank(u, [5.0, 15.0, 30.0])
+        y = 0.05 * u + 0.02 * z @ [1.0, 0.6, 0.3] + 1e-4 * u ** 2
+        out.append(Record.from_arrays(u=u, y=y + 0.01 * np.sin(7.0 * t + i), dt=dt, path=f"r{i}"))
+    return out
+
+
+def test_reference_core_matches_the_standalone_bounded_fit():
+    from fonbw.gap.cores import ReferenceCore
+    from fonbw.gap.fitter import Fitter
+    from fonbw.gap.reference import ReferenceHysteresis
+
+    recs = _pi_records()
+    fit = ReferenceHysteresis(n_plays=8, rate=None).fit(recs)
+    ref, c = fit.reference, fit.weights
+    lo = ref.bounds[0]
+    active = (c > lo) | ~np.isfinite(lo)
+    assert 0 < active.sum() < ref.n_columns   # some plays at their bound 0
+    f = Fitter(recs, core=ReferenceCore(ref, (), active))
+    zero = [np.zeros(len(r.u)) for r in recs]
+    res = f.refit([], np.zeros(0), [], zero, evals=0)
+    np.testing.assert_allclose(res["beta"], c[active], rtol=1e-8, atol=1e-8 * np.max(np.abs(c)))
+    assert res["rms"] == pytest.approx(fit.rms_train, rel=1e-8)
+    # an output operator filters every reference column, an additive block appends
+    from fonbw.gap import effects as fx
+
+    eff = [fx.Creep(1e-3, 6.0), fx.Dynamics(1e-3)]
+    A = f.design(recs, np.zeros((1, 0)), eff, [np.zeros((1, 0)), np.array([[400.0, 0.2]])], zero)[0]
+    assert A.shape == (sum(len(r.u) for r in recs), active.sum() + len(eff[0].taus))
+
+
+def test_fitter_skips_the_burn_in_of_each_record():
+    from fonbw.gap.cores import ReferenceCore
+    from fonbw.gap.fitter import Fitter
+    from fonbw.gap.reference import ReferenceHysteresis
+
+    recs = _pi_records()
+    ref = ReferenceHysteresis(n_plays=8, rate=None).with_range(recs)
+    f = Fitter(recs, core=ReferenceCore(ref), skip=[100, 0])
+    assert len(f.y) == sum(len(r.u) for r in recs) - 100
+    np.testing.assert_array_equal(f.y[:10], recs[0].y[100:110])
+
+
+def test_clip_block_is_a_smooth_rail():
+    from fonbw.gap import effects as fx
+
+    c = fx.Clip(120.0)
+    u = np.array([0.0, 50.0, 99.0, 100.0, 101.0, 200.0])
+    v = c.transform_input(u, 2e-4, (100.0, 1.0))
+    assert v[3] == pytest.approx(99.5)           # L − k/2 at the rail
+    assert abs(v[0] - 0.0) < 1e-2 and v[-1] == pytest.approx(100.0, abs=1e-2)
+    assert np.all(np.diff(v) > 0) and np.all(v <= np.minimum(u, 100.0) + 1e-12)
+    assert c.input_side and c.identified((100.0, 1.0)) and not c.identified((130.0, 1.0))

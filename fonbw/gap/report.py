@@ -3,8 +3,9 @@
 ``write_html(result, path)`` draws the localization plots (residual spectrum
 against the noise floor, RMS versus time, binned RMS versus input rate,
 amplitude, branch and time since reversal), the ranking table of the
-candidates and a waterfall nominal → +effect … → noise floor, all from the
-result alone (a :class:`fonbw.gap.DiagnosisResult` or its ``to_dict()``); the
+candidates, the hysteresis form with the loop-shape residual (FONBW's and
+the reference's residual versus the input; needs the result object) and a
+waterfall nominal → form → +effect … → noise floor, all from the result alone (a :class:`fonbw.gap.DiagnosisResult` or its ``to_dict()``); the
 PNGs are embedded as base64, so the page is one file.
 """
 from __future__ import annotations
@@ -95,9 +96,28 @@ def _figures(result):
         ax.text(i, v, f"{v:.3g}", ha="center", va="bottom", fontsize=8)
     ax.set_xticks(range(len(steps)), [s["label"] for s in steps], fontsize=8)
     ax.set_ylabel("validation RMS [µm]")
-    ax.set_title("waterfall: nominal → effects → noise floor", fontsize=9)
+    ax.set_title("waterfall: nominal → form → effects → noise floor", fontsize=9)
     figs["waterfall"] = _png(fig)
+    loops = getattr(result, "loops", None)
+    if loops:
+        figs["loops"] = _loop_figure(plt, loops)
     return figs
+
+
+def _loop_figure(plt, loops):
+    """Residual [µm] versus input [V] of the FONBW nominal and of the reference:
+    loop-shape error shows as a loop-shaped residual that the reference removes."""
+    fig, ax = plt.subplots(1, 2, figsize=(11, 3.6), sharey=True)
+    for u, r0, r1 in zip(loops["u"], loops["fonbw"], loops["reference"]):
+        step = max(1, len(u) // 4000)
+        ax[0].plot(u[::step], r0[::step], lw=0.6)
+        ax[1].plot(u[::step], r1[::step], lw=0.6)
+    ax[0].set_title("FONBW residual versus input", fontsize=9)
+    ax[1].set_title("reference hysteresis residual versus input", fontsize=9)
+    for a in ax:
+        a.set_xlabel("u [V]")
+    ax[0].set_ylabel("residual [µm]")
+    return _png(fig)
 
 
 def write_html(result, path):
@@ -121,6 +141,17 @@ def write_html(result, path):
         f"<tr><td>{esc(r['name'])}</td><td>{r['rms']:.4g}</td><td>{r['rms_pct_range']:.3g}</td>"
         f"<td>{r['excess_rms']:.4g}</td><td>{esc('; '.join(f'{a:.0f}–{b:.0f} Hz (×{m:.0f})' for a, b, m in r['spectrum']['excess_bands'][:5]))}</td></tr>"
         for r in result["localization"]["records"])
+    fo = v.get("form") or {}
+    wh = fo.get("where") or {}
+    form_txt = (f"material: {fo.get('material')}; gap closed by the reference hysteresis "
+                f"{fo['gap_closed']:.3f}" if fo.get("gap_closed") is not None else "not assessed")
+    if wh:
+        form_txt += (f"; concentrated in {wh['dominant']} (top {wh['top']:.2f}, bottom {wh['bottom']:.2f}, "
+                     f"minor loops {wh['minor_loops']:.2f} of the correction's energy)")
+    wf = "".join(f"<tr><td>{esc(w['step'])}</td><td>{w['rms_validate']:.4g}</td><td>{w['gap_closed_cum']:.3f}</td></tr>"
+                 for w in v.get("waterfall", []))
+    st = v.get("start") or {}
+    loop_img = f'<img src="{figs["loops"]}" alt="loop-shape residual">' if "loops" in figs else ""
     cov = "".join(f"<li>{esc(c['record'])}: {esc(c['condition'])} {c['validate']:.4g} (training up to {c['train']:.4g})</li>"
                   for c in v.get("coverage", [])) or "<li>none</li>"
     page = f"""<!DOCTYPE html>
@@ -140,7 +171,10 @@ noise floor σ = {nom['noise_floor']:.4g} µm.</p>
 <h2>Candidates (each refit jointly with the nominal model)</h2>
 <table><tr><th>effect</th><th>gap closed</th><th>val. RMS [µm]</th><th>ΔBIC</th><th>bootstrap p10</th>
 <th>held-out MSE ratio</th><th>accepted</th><th>parameters</th></tr>{''.join(rows)}</table>
+<h2>Hysteresis form</h2><p>{esc(form_txt)}.</p>{loop_img}
 <h2>Waterfall</h2><img src="{figs['waterfall']}" alt="waterfall">
+<table><tr><th>step</th><th>val. RMS [µm]</th><th>gap closed (cumulative)</th></tr>{wf}</table>
+<h2>Record starts</h2><p>{esc(st.get('message', ''))}</p>
 <h2>Validation conditions not covered by training</h2><ul>{cov}</ul>
 </body></html>
 """
