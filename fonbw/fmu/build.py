@@ -320,10 +320,17 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--only", choices=sorted(SCRIPTS), action="append",
                     help="build only this FMU (repeatable; default: hysteresis, compensator, plant)")
     ap.add_argument("--controller", type=Path, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--native", action="store_true",
+                    help="build the native C FMUs (FonbwHysteresisNative, FonbwCompensatorNative, "
+                         "FonbwLinearPlantNative: no Python at run time; linux64 with gcc, win64 with "
+                         "x86_64-w64-mingw32-gcc when installed; sources/ included)")
 
 
 def run(ns) -> int:
     """Build what the parsed options `ns` ask for; print each FMU written."""
+    if getattr(ns, "native", False):
+        from fonbw.fmu import native
+        return native.run(ns)
     kinds = ns.only or DEFAULT_KINDS
     built = build(ns.output, params=ns.params, plant=ns.plant, dt=ns.dt,
                   kinds=[k for k in kinds if k != "pid"])
