@@ -25,6 +25,8 @@ HOLD_SAMPLES = 10
 MAX_BURN_IN_SHARE = 0.40
 #: How close to its record extremes the input must come [fraction of u range].
 EXTREME_TOL = 0.05
+#: How close to the bottom of their ranges input and output start at rest [fraction of range].
+REST_TOL = 0.01
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,7 +37,11 @@ class StartState:
     ----------
     at_rest : bool
         True when the input is held at its first value for at least
-        ``HOLD_SAMPLES`` samples and the output does not move meanwhile.
+        ``HOLD_SAMPLES`` samples and the output does not move meanwhile,
+        that value being the bottom of the record's input range (within
+        ``REST_TOL``; a hold half-way up is a pause mid-drive); or when input
+        and output both start at the bottom of their ranges (a drive that
+        leaves rest at once, e.g. a sine from 0 V).
     burn_in : int
         Number of leading samples to exclude (0 when at rest): until the input
         has come within ``EXTREME_TOL`` of both its record minimum and maximum,
@@ -114,8 +120,15 @@ def start_state(record, hold: int = HOLD_SAMPLES, max_share: float = MAX_BURN_IN
     k = min(hold, n)
     tol_u = max(1e-3 * span_u, 4.0 * noise_level(u))
     tol_y = max(1e-3 * float(np.ptp(y)), 4.0 * noise_level(y))
-    if k >= hold and _held(u, k, tol_u) and _held(y, k, tol_y):
+    # rest is the bottom of the drive (an unpowered stage): a hold half-way up
+    # is a pause mid-drive whose hysteresis state the record does not show
+    bottom_u = u[0] <= u.min() + REST_TOL * span_u
+    bottom_y = y[0] <= y.min() + REST_TOL * max(float(np.ptp(y)), 1e-300) + tol_y
+    if k >= hold and bottom_u and _held(u, k, tol_u) and _held(y, k, tol_y):
         return StartState(True, 0, f"input held at {u[0]:.4g} V for {k} samples and output still: at rest")
+    if bottom_u and bottom_y:
+        return StartState(True, 0, f"input and output start at the bottom of their ranges ({u[0]:.4g} V): "
+                                   "driven up from rest")
     end = _sweep_end(u, EXTREME_TOL * span_u)
     cap = int(max_share * n)
     if end > cap:

@@ -12,7 +12,7 @@ def _rec(u, y=None, dt=2e-4):
 
 
 def test_start_at_rest_held_input():
-    u = np.r_[np.zeros(20), np.sin(np.linspace(0, 6 * np.pi, 500))]
+    u = np.r_[np.zeros(20), 1.0 - np.cos(np.linspace(0, 6 * np.pi, 500))]
     s = start_state(_rec(u))
     assert isinstance(s, StartState) and s.at_rest and s.burn_in == 0
 
@@ -31,8 +31,8 @@ def test_start_mid_drive_burn_in_hand_computed():
 
 
 def test_start_burn_in_capped():
-    # a ramp reaches its maximum only at the end: burn-in capped at 40 %
-    u = np.linspace(0, 1, 1000)
+    # a ramp down from the top reaches its minimum only at the end: burn-in capped at 40 %
+    u = np.linspace(1, 0, 1000)
     s = start_state(_rec(u))
     assert not s.at_rest and s.burn_in == 400 and "capped" in s.reason
 
@@ -44,6 +44,21 @@ def test_start_held_input_but_moving_output_is_not_at_rest():
     s = start_state(_rec(u, y))
     assert not s.at_rest and s.burn_in > 20
     assert s.to_dict()["burn_in"] == s.burn_in
+
+
+def test_start_hold_half_way_up_is_mid_drive_and_drive_from_bottom_is_rest():
+    ph = np.linspace(0, 6 * np.pi, 600)
+    # held at 40 V of a 0..80 V drive: a pause mid-drive; the input comes
+    # within 4 V of the bottom first, of the top (80 V) later
+    u = np.r_[np.full(100, 40.0), 40.0 - 40.0 * np.sin(ph)]
+    s = start_state(_rec(u))
+    hi = int(np.flatnonzero(u >= 76.0)[0])
+    assert np.flatnonzero(u <= 4.0)[0] < hi
+    assert not s.at_rest and s.burn_in == hi + 1
+    # a sine from 0 V leaves rest at once: input and output start at their bottom
+    v = 40.0 - 40.0 * np.cos(ph)
+    s = start_state(_rec(v))
+    assert s.at_rest and s.burn_in == 0
 
 
 # ---------------------------------------------------------------------------
