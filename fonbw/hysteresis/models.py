@@ -85,6 +85,12 @@ def _dt(dt):
 # ---------------------------------------------------------------------------
 # models
 
+#: Optional top-level fields of a model's JSON besides kind, params and units:
+#: "u_range" ([u_min, u_max] of the training input [V]) and "invertibility"
+#: ({"dt": [s], "slope_min": [µm/V], "margin": …}, see fonbw.invertibility).
+META_KEYS = ("u_range", "invertibility")
+
+
 class _Model:
     """Common part: parameters, JSON, units."""
 
@@ -96,6 +102,9 @@ class _Model:
         """JSON-ready description: kind, parameters, units."""
         params = {k: (list(map(float, v)) if isinstance(v, np.ndarray) else v) for k, v in self.params.items()}
         d = {"kind": self.kind, "params": params, "units": {k: self.units[k] for k in params if k in self.units}}
+        # where the model came from (training input range, invertibility at a
+        # step): written beside the parameters, read back by model_from_dict
+        d.update({k: v for k, v in (getattr(self, "meta", None) or {}).items() if k in META_KEYS})
         return d
 
     def save(self, path) -> None:
@@ -109,7 +118,10 @@ class _Model:
         return f"{type(self).__name__}({inner})"
 
     def __eq__(self, other):
-        return type(self) is type(other) and json.dumps(self.to_dict()) == json.dumps(other.to_dict())
+        # the parameters decide, not the provenance fields (META_KEYS)
+        def core(m):
+            return json.dumps({k: v for k, v in m.to_dict().items() if k not in META_KEYS})
+        return type(self) is type(other) and core(self) == core(other)
 
     def simulate(self, u, dt) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError

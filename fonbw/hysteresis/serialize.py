@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 import os
 
-from .models import CBW, FONBW, KINDS, NBW, Zhu2016
+from .models import CBW, FONBW, KINDS, META_KEYS, NBW, Zhu2016
 
 
 def model_from_dict(d: dict, source: str = "<dict>"):
@@ -23,7 +23,9 @@ def model_from_dict(d: dict, source: str = "<dict>"):
         raise ValueError(f"{source}: field 'params' must be an object")
     cls = {"fonbw": FONBW, "nbw": NBW, "cbw": CBW, "zhu": Zhu2016}[kind]
     try:
-        return cls(**params)
+        m = cls(**params)
+        m.meta = {k: d[k] for k in META_KEYS if k in d}
+        return m
     except TypeError as exc:
         raise ValueError(f"{source}: field 'params': {exc}") from None
     except ValueError as exc:
