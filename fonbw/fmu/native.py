@@ -48,7 +48,7 @@ KIND_CODES = {"hysteresis": 1, "compensator": 2, "plant": 3}
 #: Platform folder -> (compiler, shared-library suffix, extra flags).
 PLATFORMS = {"linux64": ("gcc", ".so", ["-fPIC", "-fvisibility=hidden", "-Wl,-Bsymbolic"]),
              "win64": ("x86_64-w64-mingw32-gcc", ".dll", ["-static-libgcc"])}
-CFLAGS = ["-std=c99", "-O2", "-ffp-contract=off", "-shared"]
+CFLAGS = ["-std=c99", "-O3", "-ffp-contract=off", "-shared"]
 ENGINE_CODES = {"fast": 0, "exact": 1, "short": 2}
 MAX_KU = 16
 MAX_STATES = 32
