@@ -1,7 +1,7 @@
 """Speed of the native FONBW FMU in a C host, beside the pythonfmu FMU.
 
 Builds FonbwHysteresisNative (and the pythonfmu FonbwHysteresis), compiles
-fonbw/fmu/native/fmu_host.c with gcc, and reports the cost of a doStep
+fonbw/fmu/csrc/fmu_host.c with gcc, and reports the cost of a doStep
 (setReal + doStep + getReal, one internal step per communication step) and of
 the initialization (instantiate to exitInitializationMode), with the machine
 load beside the figures. The pythonfmu FMU runs in the same host with the

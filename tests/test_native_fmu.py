@@ -38,7 +38,7 @@ def fmus(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def host(fmus, tmp_path_factory):
-    """The C host of fonbw/fmu/native/fmu_host.c, compiled with gcc."""
+    """The C host of fonbw/fmu/csrc/fmu_host.c, compiled with gcc."""
     exe = tmp_path_factory.mktemp("host") / "fmu_host"
     subprocess.run(["gcc", "-std=c99", "-D_POSIX_C_SOURCE=200809L", "-O2", "-I",
                     str(fmus["hysteresis"]["dir"] / "sources"), "-o", str(exe),

@@ -1,6 +1,6 @@
 """Build the fonbw native FMI 2.0 co-simulation FMUs (C99, libc and libm only).
 
-The FMUs, compiled from the C sources in ``fonbw/fmu/native/`` (package data):
+The FMUs, compiled from the C sources in ``fonbw/fmu/csrc/`` (package data):
 
 * ``FonbwHysteresisNative``   u [V] -> y [µm], the FONBW model
 * ``FonbwCompensatorNative``  y_ref [µm] -> u [V], its causal per-step inverse
@@ -37,7 +37,7 @@ __all__ = ["NATIVE_DIR", "NATIVE_NAMES", "PLATFORMS", "build_native", "build_nat
            "compilers", "run"]
 
 #: The C sources (package data).
-NATIVE_DIR = Path(__file__).resolve().parent / "native"
+NATIVE_DIR = Path(__file__).resolve().parent / "csrc"
 C_SOURCES = ("fonbw_fmi2.c", "fonbw_numerics.c", "fonbw_compensator.c", "fonbw_plant.c")
 HEADERS = ("fonbw_numerics.h",)
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
