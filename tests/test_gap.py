@@ -338,7 +338,12 @@ def test_json_contract_and_gap_closed_definition(dynamics_case):
     json.dumps(res, allow_nan=False)  # strict JSON
     assert set(res) >= {"nominal", "localization", "candidates", "verdict"}
     assert set(res["nominal"]) >= {"model", "rms_validate", "noise_floor"}
-    assert set(res["verdict"]) >= {"effects", "gap_closed", "unexplained"}
+    assert set(res["verdict"]) >= {"effects", "gap_closed", "unexplained", "form", "waterfall", "start"}
+    assert set(res["verdict"]["form"]) >= {"material", "gap_closed", "where"}
+    assert not res["verdict"]["form"]["material"]     # a FONBW core: no form
+    wf = res["verdict"]["waterfall"]
+    assert wf[0]["step"] == "nominal" and wf[-1]["step"] == "noise floor"
+    assert wf[-1]["gap_closed_cum"] == pytest.approx(1.0)
     assert res["nominal"]["noise_floor"] == pytest.approx(truth.noise_std, rel=0.1)
     s2 = res["nominal"]["noise_floor"] ** 2
     m0 = res["nominal"]["rms_validate"] ** 2
@@ -351,7 +356,9 @@ def test_json_contract_and_gap_closed_definition(dynamics_case):
 
 def test_html_report_is_self_contained(dynamics_case):
     _, page, _ = dynamics_case
-    assert page.count("data:image/png;base64,") == 3
+    # localization (2), waterfall, and the loop-shape residual of FONBW and the reference
+    assert page.count("data:image/png;base64,") == 4
+    assert "Hysteresis form" in page
     assert "src=\"http" not in page and "<script" not in page
 
 
@@ -359,6 +366,7 @@ def test_blind_null_names_nothing():
     sc = tr.draw_scenario(7, "null", scale=0.5)
     res = diagnose(sc["train"], sc["validate"], seed=1, **FAST)
     assert res["verdict"]["effects"] == []
+    assert not res["verdict"]["form"]["material"]    # a FONBW core has no form error
     assert res["nominal"]["noise_floor"] == pytest.approx(sc["noise_std"], rel=0.1)
 
 

@@ -124,3 +124,66 @@ def test_clip_block_is_a_smooth_rail():
     assert abs(v[0] - 0.0) < 1e-2 and v[-1] == pytest.approx(100.0, abs=1e-2)
     assert np.all(np.diff(v) > 0) and np.all(v <= np.minimum(u, 100.0) + 1e-12)
     assert c.input_side and c.identified((100.0, 1.0)) and not c.identified((130.0, 1.0))
+
+
+# ---------------------------------------------------------------------------
+# fixed-seed diagnoses per core family (the full run is benchmarks/blind_gap.py)
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import gap_truth as tr  # noqa: E402
+
+from fonbw.gap import diagnose  # noqa: E402
+
+FAST = dict(budget=500, global_evals=160, refit_evals=45)
+
+
+def _family_case(seed, family, effects=None, mid_drive=0.0):
+    sc = tr.draw_scenario(seed, "null", scale=0.5, family=family, mid_drive=mid_drive)
+    if effects:
+        truth = sc["truth"]
+        truth.effects = effects
+        tr_in, va_in = tr.default_experiments(scale=0.5)
+        sc["train"] = [truth.record(u, n, i) for i, (n, u) in enumerate(tr_in)]
+        sc["validate"] = [truth.record(u, n, 50 + i) for i, (n, u) in enumerate(va_in)]
+    return sc, diagnose(sc["train"], sc["validate"], seed=1, **FAST).to_dict()
+
+
+@pytest.mark.slow
+def test_preisach_core_null_names_the_form_and_no_effect():
+    _, d = _family_case(21, "preisach")
+    v = d["verdict"]
+    assert v["form"]["material"] and v["effects"] == []
+    assert v["form"]["gap_closed"] > 0.7 and v["gap_closed"] > 0.7
+    assert v["form"]["where"]["dominant"] in ("branch", "amplitude", "input_rate", "time_since_reversal")
+    steps = [w["step"] for w in v["waterfall"]]
+    assert steps == ["nominal", "form", "noise floor"]
+    assert d["nominal"]["attributed_on"] == "reference"
+
+
+@pytest.mark.slow
+def test_pi_core_null_names_the_form_and_no_effect():
+    _, d = _family_case(23, "pi")
+    v = d["verdict"]
+    assert v["form"]["material"] and v["effects"] == []
+    assert v["gap_closed"] == pytest.approx(v["form"]["gap_closed"]) and v["gap_closed"] > 0.85
+
+
+@pytest.mark.slow
+def test_fonbw_core_starting_mid_drive_names_nothing():
+    _, d = _family_case(21, "fonbw", mid_drive=1.0)
+    v = d["verdict"]
+    assert v["start"]["mid_drive"]
+    assert any(s["burn_in"] > 0 and not s["at_rest"] for s in d["records"]["start"]["train"])
+    assert not v["form"]["material"] and v["effects"] == []
+
+
+@pytest.mark.slow
+def test_pi_core_with_creep_names_the_form_and_creep():
+    _, d = _family_case(22, "pi", effects={"creep": {"gamma": 0.03}})
+    v = d["verdict"]
+    assert v["form"]["material"] and v["effects"] == ["creep"]
+    assert v["form"]["gap_closed"] > 0.9 and v["gap_closed"] > 0.95
+    assert [w["step"] for w in v["waterfall"]] == ["nominal", "form", "+creep", "noise floor"]
