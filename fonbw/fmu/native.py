@@ -5,6 +5,14 @@ The FMUs, compiled from the C sources in ``fonbw/fmu/csrc/`` (package data):
 * ``FonbwHysteresisNative``   u [V] -> y [µm], the FONBW model
 * ``FonbwCompensatorNative``  y_ref [µm] -> u [V], its causal per-step inverse
 * ``FonbwLinearPlantNative``  a linear state-space plant (python-control)
+* ``FonbwPIDNative``          the closed loop's controller r, y, u_ff -> u
+  (:class:`fonbw.loop.LoopController`: :class:`fonbw.pid.PIDStepper` with a
+  feedforward added before the limits)
+
+and, for measuring what a master spends around the model, pass-through
+variants (``FonbwPass...Native``, :data:`PASS_NAMES`): the same variables,
+parameters, checks and state handling as their kind, but the step is
+output = first input.
 
 They transcribe the library's numerics operation by operation (history sums
 in the same eight-lane order, the same safeguarded Newton solve and
@@ -33,18 +41,24 @@ from xml.etree.ElementTree import Element, SubElement, indent, tostring
 
 import fonbw
 
-__all__ = ["NATIVE_DIR", "NATIVE_NAMES", "PLATFORMS", "build_native", "build_native_one", "fmi_headers",
+__all__ = ["NATIVE_DIR", "NATIVE_NAMES", "PASS_NAMES", "PLATFORMS", "host_platform", "build_native", "build_native_one", "fmi_headers",
            "compilers", "run"]
 
 #: The C sources (package data).
 NATIVE_DIR = Path(__file__).resolve().parent / "csrc"
-C_SOURCES = ("fonbw_fmi2.c", "fonbw_numerics.c", "fonbw_compensator.c", "fonbw_plant.c")
+C_SOURCES = ("fonbw_fmi2.c", "fonbw_numerics.c", "fonbw_compensator.c", "fonbw_plant.c", "fonbw_pid.c")
 HEADERS = ("fonbw_numerics.h",)
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 #: Model identifier of each kind (distinct from the pythonfmu FMUs').
 NATIVE_NAMES = {"hysteresis": "FonbwHysteresisNative", "compensator": "FonbwCompensatorNative",
-                "plant": "FonbwLinearPlantNative"}
-KIND_CODES = {"hysteresis": 1, "compensator": 2, "plant": 3}
+                "plant": "FonbwLinearPlantNative", "pid": "FonbwPIDNative"}
+#: Model identifier of the pass-through variant of each kind.
+PASS_NAMES = {k: v.replace("Fonbw", "FonbwPass", 1) for k, v in NATIVE_NAMES.items()}
+#: Kinds that ``fonbw build-fmu --native`` builds by default.
+DEFAULT_NATIVE_KINDS = ("hysteresis", "compensator", "plant")
+KIND_CODES = {"hysteresis": 1, "compensator": 2, "plant": 3, "pid": 4}
+INTEGRATOR_CODES = {"forward": 0, "backward": 1, "tustin": 2}
+ANTI_WINDUP_CODES = {"back-calculation": 0, "clamping": 1, "none": 2}
 #: Platform folder -> (compiler, shared-library suffix, extra flags).
 PLATFORMS = {"linux64": ("gcc", ".so", ["-fPIC", "-fvisibility=hidden", "-Wl,-Bsymbolic"]),
              "win64": ("x86_64-w64-mingw32-gcc", ".dll", ["-static-libgcc"])}
@@ -118,14 +132,31 @@ def _plant_config(res: dict) -> dict:
             "DEFAULT_DT": _c(res["dt"])}
 
 
-def config_header(kind: str, res: dict, guid: str) -> str:
-    """Text of ``config.h`` for one FMU: its kind, GUID and start values."""
-    cfg = _plant_config(res) if kind == "plant" else _model_config(res)
-    lines = [f"/* {NATIVE_NAMES[kind]}: written by fonbw.fmu.native (fonbw {fonbw.__version__}) */",
+def _pid_config(res: dict) -> dict:
+    """Start values of the PID from a controller spec
+    (:func:`fonbw.loop.controller_spec`)."""
+    for key, codes in (("integrator", INTEGRATOR_CODES), ("anti_windup", ANTI_WINDUP_CODES)):
+        if res[key] not in codes:
+            raise NativeBuildError(f"{key} = {res[key]!r} is not one of {', '.join(codes)}")
+    cfg = {f"DEFAULT_{k.upper()}": _c(res[k]) for k in ("kp", "ki", "kd", "Tf", "Tt", "dt")}
+    cfg.update(DEFAULT_UMIN=_c(res["u_min"]), DEFAULT_UMAX=_c(res["u_max"]),
+               DEFAULT_INTEGRATOR=str(INTEGRATOR_CODES[res["integrator"]]),
+               DEFAULT_ANTI_WINDUP=str(ANTI_WINDUP_CODES[res["anti_windup"]]))
+    return cfg
+
+
+def config_header(kind: str, res: dict, guid: str, pass_through: bool = False) -> str:
+    """Text of ``config.h`` for one FMU: its kind, GUID and start values
+    (and ``PASS_THROUGH`` for the pass-through variant)."""
+    cfg = {"plant": _plant_config, "pid": _pid_config}.get(kind, _model_config)(res)
+    name = (PASS_NAMES if pass_through else NATIVE_NAMES)[kind]
+    lines = [f"/* {name}: written by fonbw.fmu.native (fonbw {fonbw.__version__}) */",
              "#ifndef FONBW_CONFIG_H", "#define FONBW_CONFIG_H",
              f"#define MODEL_KIND {KIND_CODES[kind]}", f'#define INSTANTIATION_TOKEN "{guid}"']
+    if pass_through:
+        lines.append("#define PASS_THROUGH 1")
     lines += [f"#define {k} {v}" for k, v in cfg.items()]
-    if kind == "plant":  # unused FONBW names, so that one source serves all kinds
+    if kind in ("plant", "pid"):  # unused FONBW names, so that one source serves all kinds
         lines += ["#define NKU 1"]
     lines.append("#endif")
     return "\n".join(lines) + "\n"
@@ -135,7 +166,9 @@ def config_header(kind: str, res: dict, guid: str) -> str:
 # model description
 
 _VR = {"in": 0, "out": 1, "kh": 2, "rho": 3, "sigma": 4, "n": 5, "lam1": 6, "lam2": 7, "dt": 8,
-       "u_min": 9, "u_max": 10, "ku": 20, "K": 40, "M": 41, "L": 42, "status": 43, "memory": 50}
+       "u_min": 9, "u_max": 10, "y": 11, "u_ff": 12, "kp": 13, "ki": 14, "kd": 15, "Tf": 16, "Tt": 17,
+       "ku": 20, "K": 40, "M": 41, "L": 42, "status": 43, "memory": 50, "integrator": 51,
+       "anti_windup": 52}
 _DT_DOC = "Internal fixed step; every communication step must be a whole multiple of it"
 
 
@@ -191,6 +224,30 @@ def _fonbw_variables(res: dict, kind: str) -> list:
     return io + par
 
 
+def _pid_variables(res: dict) -> list:
+    """The variables of the PID FMU (names as the pythonfmu FonbwPID's)."""
+    io = [("r", "Real", _VR["in"], "input", "continuous", "um", 0.0,
+           "Reference displacement, held over each communication step"),
+          ("u", "Real", _VR["out"], "output", "continuous", "V", None,
+           "Actuator voltage command sat(u_ff + PID(r - y)) at the end of the step"),
+          ("y", "Real", _VR["y"], "input", "continuous", "um", 0.0,
+           "Measured displacement, held over each communication step"),
+          ("u_ff", "Real", _VR["u_ff"], "input", "continuous", "V", 0.0,
+           "Feedforward voltage added to the PID output before the limits (0: feedback only)")]
+    par = [(k, "Real", _VR[k], "parameter", "fixed", unit, res[k], doc) for k, unit, doc in (
+        ("kp", "V/um", "Proportional gain"), ("ki", "V/(um.s)", "Integral gain"),
+        ("kd", "V.s/um", "Derivative gain"), ("Tf", "s", "Derivative filter time constant"),
+        ("Tt", "s", "Tracking time constant of the back-calculation anti-windup (>= dt)"),
+        ("u_min", "V", "Lower output limit (use -1e300 for none)"),
+        ("u_max", "V", "Upper output limit (use 1e300 for none)"),
+        ("dt", "s", "Controller sample time; " + _DT_DOC[0].lower() + _DT_DOC[1:]))]
+    par += [("integrator", "String", _VR["integrator"], "parameter", "fixed", None, res["integrator"],
+             "Discretization of the integral: forward, backward or tustin"),
+            ("anti_windup", "String", _VR["anti_windup"], "parameter", "fixed", None, res["anti_windup"],
+             "Anti-windup: back-calculation, clamping or none")]
+    return io + par
+
+
 def _plant_variables(res: dict) -> list:
     i, o = res["input"], res["output"]
     return [(i["name"], "Real", _VR["in"], "input", "continuous", i.get("unit"), 0.0,
@@ -201,18 +258,33 @@ def _plant_variables(res: dict) -> list:
              _DT_DOC + "; a continuous plant is discretized with it (zero-order hold) at initialization")]
 
 
-def model_description(kind: str, res: dict, guid: str) -> str:
-    """modelDescription.xml of one native FMU."""
+_DESCRIPTIONS = {"hysteresis": "FONBW hysteresis of a piezo actuator (native C)",
+                 "compensator": "Causal per-step inverse (compensator) of the FONBW hysteresis (native C)",
+                 "pid": "Discrete PID controller with derivative filter, output limits and anti-windup "
+                        "(fonbw.pid.PIDStepper), plus a feedforward input added before the limits: "
+                        "u = sat(u_ff + PID(r - y)); fixed sample time dt (native C)"}
+
+
+def _description(kind: str, res: dict, pass_through: bool) -> str:
+    if pass_through:
+        return (f"Pass-through with the interface of {NATIVE_NAMES[kind]}: output = first input "
+                f"(a baseline for the cost of a master; native C)")
+    if kind == "plant":
+        return res.get("description") or "Linear state-space plant, exact zero-order hold"
+    return _DESCRIPTIONS[kind]
+
+
+def model_description(kind: str, res: dict, guid: str, pass_through: bool = False) -> str:
+    """modelDescription.xml of one native FMU (or of its pass-through variant)."""
     from fonbw.fmu.slaves.fonbw_fmu_common import base_unit
 
-    mid = NATIVE_NAMES[kind]
+    mid = (PASS_NAMES if pass_through else NATIVE_NAMES)[kind]
     plant = kind == "plant"
-    variables = _plant_variables(res) if plant else _fonbw_variables(res, kind)
+    variables = {"plant": _plant_variables, "pid": _pid_variables}.get(
+        kind, lambda r: _fonbw_variables(r, kind))(res)
     root = Element("fmiModelDescription", {
         "fmiVersion": "2.0", "modelName": mid, "guid": guid, "generationTool": f"fonbw {fonbw.__version__}",
-        "description": (res.get("description") or "Linear state-space plant, exact zero-order hold") if plant
-        else ("FONBW hysteresis of a piezo actuator" if kind == "hysteresis"
-              else "Causal per-step inverse (compensator) of the FONBW hysteresis") + " (native C)",
+        "description": _description(kind, res, pass_through),
         "author": "fonbw", "license": "MIT", "variableNamingConvention": "structured",
         "numberOfEventIndicators": "0"})
     cs = SubElement(root, "CoSimulation", {
@@ -249,7 +321,7 @@ def model_description(kind: str, res: dict, guid: str) -> str:
             t.set("unit", unit)
     ms = SubElement(root, "ModelStructure")
     outs = [i for i, v in enumerate(variables, 1) if v[3] == "output"]
-    feed = plant and float(res["D"][0][0]) != 0.0
+    feed = plant and not pass_through and float(res["D"][0][0]) != 0.0
     deps = "1" if feed else ""
     for tag in ("Outputs", "InitialUnknowns"):
         node = SubElement(ms, tag)
@@ -262,14 +334,14 @@ def model_description(kind: str, res: dict, guid: str) -> str:
 # ---------------------------------------------------------------------------
 # building
 
-def _stage_sources(src: Path, kind: str, res: dict, guid: str) -> None:
+def _stage_sources(src: Path, kind: str, res: dict, guid: str, pass_through: bool) -> None:
     src.mkdir(parents=True)
     for f in C_SOURCES + HEADERS:
         shutil.copy(NATIVE_DIR / f, src / f)
     hdr = fmi_headers()
     for f in FMI_HEADERS:
         shutil.copy(hdr / f, src / f)
-    (src / "config.h").write_text(config_header(kind, res, guid), encoding="utf-8")
+    (src / "config.h").write_text(config_header(kind, res, guid, pass_through), encoding="utf-8")
 
 
 def compile_binary(src: Path, out: Path, platform: str, compiler: str | None = None) -> Path:
@@ -284,27 +356,37 @@ def compile_binary(src: Path, out: Path, platform: str, compiler: str | None = N
     return out
 
 
-def _guid(kind: str, res: dict) -> str:
-    h = hashlib.sha1(json.dumps([kind, res], sort_keys=True).encode())
+def _guid(kind: str, res: dict, pass_through: bool = False) -> str:
+    h = hashlib.sha1(json.dumps([kind, res, pass_through], sort_keys=True).encode())
     for f in C_SOURCES + HEADERS:
         h.update((NATIVE_DIR / f).read_bytes())
     return "{" + str(uuid.UUID(bytes=h.digest()[:16])) + "}"
 
 
-def build_native_one(kind: str, res: dict, out_dir, platforms=None) -> Path:
+def host_platform() -> str:
+    """The platform folder of this process (``linux64`` or ``win64``)."""
+    import sys
+
+    return "win64" if sys.platform == "win32" else "linux64"
+
+
+def build_native_one(kind: str, res: dict, out_dir, platforms=None, pass_through: bool = False) -> Path:
     """Build one native FMU of `kind` from its resource (the dict the
     pythonfmu builder writes: :func:`fonbw.fmu.build.model_resource` or
     :func:`~fonbw.fmu.build.plant_resource`) into `out_dir`, then validate it.
 
     Parameters
     ----------
-    kind : {"hysteresis", "compensator", "plant"}
+    kind : {"hysteresis", "compensator", "plant", "pid"}
     res : dict
-        Model or plant resource.
+        Model or plant resource, or for ``pid`` a controller spec
+        (:func:`fonbw.loop.controller_spec`).
     out_dir : path-like
         Output folder (created if missing).
     platforms : sequence of str, optional
         Binaries to compile (default: every platform whose compiler is on PATH).
+    pass_through : bool
+        Build the pass-through variant (:data:`PASS_NAMES`) instead.
 
     Returns
     -------
@@ -319,15 +401,16 @@ def build_native_one(kind: str, res: dict, out_dir, platforms=None) -> Path:
     if missing or not platforms:
         raise NativeBuildError(f"no compiler for {', '.join(missing) or 'any platform'} "
                                f"(need {', '.join(PLATFORMS[p][0] for p in missing or PLATFORMS)})")
-    mid = NATIVE_NAMES[kind]
-    guid = _guid(kind, res)
+    mid = (PASS_NAMES if pass_through else NATIVE_NAMES)[kind]
+    guid = _guid(kind, res, pass_through)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     fmu = out_dir / f"{mid}.fmu"
     with tempfile.TemporaryDirectory(prefix="fonbw_native_") as stage:
         stage = Path(stage)
-        _stage_sources(stage / "sources", kind, res, guid)
-        (stage / "modelDescription.xml").write_text(model_description(kind, res, guid), encoding="utf-8")
+        _stage_sources(stage / "sources", kind, res, guid, pass_through)
+        (stage / "modelDescription.xml").write_text(model_description(kind, res, guid, pass_through),
+                                                    encoding="utf-8")
         for p in platforms:
             compile_binary(stage / "sources", stage / "binaries" / p / (mid + PLATFORMS[p][1]), p)
         tmp = out_dir / f".{mid}.fmu.tmp"
@@ -343,8 +426,8 @@ def build_native_one(kind: str, res: dict, out_dir, platforms=None) -> Path:
 
 
 def build_native(out_dir, *, params=None, plant=None, dt: float | None = None,
-                 kinds=("hysteresis", "compensator", "plant"), platforms=None) -> list[Path]:
-    """Build the native hysteresis, compensator and plant FMUs into `out_dir`.
+                 kinds=DEFAULT_NATIVE_KINDS, platforms=None, controller=None) -> list[Path]:
+    """Build the native hysteresis, compensator and plant (and PID) FMUs into `out_dir`.
 
     Parameters
     ----------
@@ -357,9 +440,12 @@ def build_native(out_dir, *, params=None, plant=None, dt: float | None = None,
     dt : float, optional
         Default internal step [s] (default 1e-4; the plant: its file's step).
     kinds : sequence of str
-        Which FMUs to build.
+        Which FMUs to build (of :data:`NATIVE_NAMES`).
     platforms : sequence of str, optional
         ``linux64``, ``win64`` (default: those with a compiler on PATH).
+    controller : dict, optional
+        Start values of the PID (:func:`fonbw.loop.controller_spec` keyword
+        arguments; default kp = 1e-3 V/um, ki = 100 V/(um s)).
 
     Returns
     -------
@@ -375,20 +461,37 @@ def build_native(out_dir, *, params=None, plant=None, dt: float | None = None,
             res = plant_resource(plant or DEFAULT_PLANT, dt)
         elif kind in ("hysteresis", "compensator"):
             res = model_resource(params or DEFAULT_MODEL, DEFAULT_DT if dt is None else dt)
+        elif kind == "pid":
+            res = pid_resource(controller, DEFAULT_DT if dt is None else dt)
         else:
             raise NativeBuildError(f"no native FMU of kind {kind!r}; choose from {', '.join(NATIVE_NAMES)}")
         built.append(build_native_one(kind, res, out_dir, platforms))
     return built
 
 
+def pid_resource(controller=None, dt: float = 1e-4) -> dict:
+    """The PID's start values: :func:`fonbw.loop.controller_spec` of
+    `controller` (keyword arguments; default kp = 1e-3 V/um, ki = 100 V/(um s)
+    at step `dt` [s]), without its design notes."""
+    from fonbw.loop.controller import CONTROLLER_KEYS, controller_spec
+
+    c = dict(controller or {"kp": 1e-3, "ki": 100.0, "dt": dt})
+    spec = controller_spec(**{k: c[k] for k in CONTROLLER_KEYS if k in c})
+    return {k: spec[k] for k in CONTROLLER_KEYS}
+
+
 def run(ns) -> int:
     """``build-fmu --native``: build the native FMUs the parsed options ask for."""
-    kinds = [k for k in (ns.only or NATIVE_NAMES) if k in NATIVE_NAMES]
+    kinds = [k for k in (ns.only or DEFAULT_NATIVE_KINDS) if k in NATIVE_NAMES]
+    controller = None
+    if getattr(ns, "controller", None) is not None:
+        controller = json.loads(Path(ns.controller).read_text(encoding="utf-8"))
     avail = compilers()
     for p in PLATFORMS:
         if p not in avail:
             print(f"note: {PLATFORMS[p][0]} not found: no {p} binary (the FMUs carry sources/)")
     dt = ns.dt if ns.dt != 1e-4 else None
-    for p in build_native(ns.output, params=ns.params, plant=ns.plant, dt=dt, kinds=kinds):
+    for p in build_native(ns.output, params=ns.params, plant=ns.plant, dt=dt, kinds=kinds,
+                          controller=controller):
         print(f"wrote {p} ({', '.join(sorted(avail))}; fmpy validate: no problem)")
     return 0

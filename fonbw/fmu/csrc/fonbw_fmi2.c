@@ -5,8 +5,13 @@
  *   MODEL_KIND 1  FonbwHysteresisNative   u [V]     -> y [um]
  *   MODEL_KIND 2  FonbwCompensatorNative  y_ref [um] -> u [V], status
  *   MODEL_KIND 3  FonbwLinearPlantNative  input -> output (state space)
- * Numerics in fonbw_numerics.c, fonbw_compensator.c, fonbw_plant.c. Every
- * entry point checks the instance and its state in one place (BEGIN). */
+ *   MODEL_KIND 4  FonbwPIDNative          r, y [um], u_ff [V] -> u [V]
+ * With PASS_THROUGH defined, the FMU keeps the variables, parameters and
+ * checks of its kind but its step is output = first input (a baseline that
+ * shows what a master spends around the model).
+ * Numerics in fonbw_numerics.c, fonbw_compensator.c, fonbw_plant.c,
+ * fonbw_pid.c. Every entry point checks the instance and its state in one
+ * place (BEGIN). */
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -20,11 +25,17 @@
 #define KIND_HYST 1
 #define KIND_COMP 2
 #define KIND_PLANT 3
+#define KIND_PID 4
+#ifndef PASS_THROUGH
+#define PASS_THROUGH 0
+#endif
 
 /* value references (Real, Integer and String share one numbering) */
 enum { VR_IN = 0, VR_OUT = 1, VR_KH = 2, VR_RHO = 3, VR_SIGMA = 4, VR_N = 5, VR_LAM1 = 6,
-       VR_LAM2 = 7, VR_DT = 8, VR_UMIN = 9, VR_UMAX = 10, VR_KU = 20,
-       VR_K = 40, VR_M = 41, VR_L = 42, VR_STATUS = 43, VR_MEMORY = 50, NVR = 51 };
+       VR_LAM2 = 7, VR_DT = 8, VR_UMIN = 9, VR_UMAX = 10, VR_Y = 11, VR_UFF = 12, VR_KP = 13,
+       VR_KI = 14, VR_KD = 15, VR_TF = 16, VR_TT = 17, VR_KU = 20,
+       VR_K = 40, VR_M = 41, VR_L = 42, VR_STATUS = 43, VR_MEMORY = 50, VR_INTEGRATOR = 51,
+       VR_ANTI_WINDUP = 52, NVR = 53 };
 
 #define STEP_MULTIPLE_TOL 1e-6
 #define STATE_MAGIC 4607863412.0
@@ -43,14 +54,18 @@ typedef struct {
     int engine;             /* the String parameter memory */
     int built;              /* the model below exists */
     double built_from[NVR]; /* parameters it was built from */
+    int built_from_i[NVR];
     int built_engine;
     Fonbw hyst;
     Compensator comp;
     Plant plant;
+    Pid pid;
     int bad_before;         /* compensator: in a saturation episode */
 } Instance;
 
 static const char *ENGINE_NAMES[] = {"fast", "exact", "short"};
+static const char *INTEGRATOR_NAMES[] = {"forward", "backward", "tustin"};
+static const char *ANTI_WINDUP_NAMES[] = {"back-calculation", "clamping", "none"};
 
 static void logf_(Instance *c, fmi2Status st, const char *cat, const char *fmt, ...) {
     char buf[1024];
@@ -71,9 +86,16 @@ static void logf_(Instance *c, fmi2Status st, const char *cat, const char *fmt, 
         return fmi2Error;                                                             \
     }
 
+static int is_input(int vr) {
+    return vr == VR_IN || (MODEL_KIND == KIND_PID && (vr == VR_Y || vr == VR_UFF));
+}
+
 static int is_param(int vr) {
     if (vr == VR_DT) return 1;
-#if MODEL_KIND != KIND_PLANT
+#if MODEL_KIND == KIND_PID
+    if (vr == VR_UMIN || vr == VR_UMAX || (vr >= VR_KP && vr <= VR_TT) || vr == VR_INTEGRATOR ||
+        vr == VR_ANTI_WINDUP) return 1;
+#elif MODEL_KIND != KIND_PLANT
     if ((vr >= VR_KH && vr <= VR_LAM2) || (vr >= VR_KU && vr < VR_KU + NKU) ||
         vr == VR_K || vr == VR_M || vr == VR_L || vr == VR_MEMORY) return 1;
 #if MODEL_KIND == KIND_COMP
@@ -84,21 +106,41 @@ static int is_param(int vr) {
 }
 
 static int is_real(int vr) {
-    return vr == VR_IN || vr == VR_OUT || (is_param(vr) && vr < VR_K);
+    return is_input(vr) || vr == VR_OUT || (is_param(vr) && vr < VR_K);
 }
 
 static int is_int(int vr) {
 #if MODEL_KIND == KIND_COMP
     if (vr == VR_STATUS) return 1;
 #endif
-    return MODEL_KIND != KIND_PLANT && (vr == VR_K || vr == VR_M || vr == VR_L);
+    return MODEL_KIND != KIND_PLANT && MODEL_KIND != KIND_PID && (vr == VR_K || vr == VR_M || vr == VR_L);
+}
+
+/* the names a String parameter takes (NULL: not a String variable), and where its index is kept */
+static const char **string_names(Instance *c, int vr, int *count, int **slot) {
+    if (MODEL_KIND == KIND_PID && (vr == VR_INTEGRATOR || vr == VR_ANTI_WINDUP)) {
+        *count = 3;
+        *slot = &c->i[vr];
+        return vr == VR_INTEGRATOR ? INTEGRATOR_NAMES : ANTI_WINDUP_NAMES;
+    }
+    if (MODEL_KIND != KIND_PLANT && MODEL_KIND != KIND_PID && vr == VR_MEMORY) {
+        *count = 3;
+        *slot = &c->engine;
+        return ENGINE_NAMES;
+    }
+    return NULL;
 }
 
 static void set_defaults(Instance *c) {
     memset(c->r, 0, sizeof c->r);
     memset(c->i, 0, sizeof c->i);
     c->r[VR_DT] = DEFAULT_DT;
-#if MODEL_KIND != KIND_PLANT
+#if MODEL_KIND == KIND_PID
+    c->r[VR_KP] = DEFAULT_KP; c->r[VR_KI] = DEFAULT_KI; c->r[VR_KD] = DEFAULT_KD;
+    c->r[VR_TF] = DEFAULT_TF; c->r[VR_TT] = DEFAULT_TT;
+    c->r[VR_UMIN] = DEFAULT_UMIN; c->r[VR_UMAX] = DEFAULT_UMAX;
+    c->i[VR_INTEGRATOR] = DEFAULT_INTEGRATOR; c->i[VR_ANTI_WINDUP] = DEFAULT_ANTI_WINDUP;
+#elif MODEL_KIND != KIND_PLANT
     {
         static const double ku[NKU] = DEFAULT_KU;
         int k;
@@ -114,7 +156,8 @@ static void set_defaults(Instance *c) {
 
 static void free_model(Instance *c) {
     if (!c->built) return;
-#if MODEL_KIND == KIND_HYST
+#if PASS_THROUGH
+#elif MODEL_KIND == KIND_HYST
     fonbw_free(&c->hyst);
 #elif MODEL_KIND == KIND_COMP
     comp_free(&c->comp);
@@ -122,7 +165,7 @@ static void free_model(Instance *c) {
     c->built = 0;
 }
 
-#if MODEL_KIND != KIND_PLANT
+#if MODEL_KIND != KIND_PLANT && MODEL_KIND != KIND_PID
 static FonbwParams params_of(const Instance *c) {
     FonbwParams p;
     int k;
@@ -143,7 +186,22 @@ static int build_model(Instance *c) {
     double dt = c->r[VR_DT];
     int rc = 0;
     free_model(c);
-#if MODEL_KIND == KIND_PLANT
+#if PASS_THROUGH
+    (void)rc;
+    if (!(isfinite(dt) && dt > 0.0)) {
+        snprintf(msg, sizeof msg, "dt = %.17g s must be a finite number > 0", dt);
+        bad = msg;
+    }
+#elif MODEL_KIND == KIND_PID
+    {
+        Pid *p = &c->pid;
+        memset(p, 0, sizeof *p);
+        p->kp = c->r[VR_KP]; p->ki = c->r[VR_KI]; p->kd = c->r[VR_KD]; p->dt = dt;
+        p->lo = c->r[VR_UMIN]; p->hi = c->r[VR_UMAX]; p->Tf = c->r[VR_TF]; p->Tt = c->r[VR_TT];
+        p->integrator = c->i[VR_INTEGRATOR]; p->anti_windup = c->i[VR_ANTI_WINDUP];
+        bad = pid_check(p, msg, sizeof msg);
+    }
+#elif MODEL_KIND == KIND_PLANT
     {
         static const double A[] = PLANT_A, B[] = PLANT_B, C[] = PLANT_C;
         memset(&c->plant, 0, sizeof c->plant);
@@ -189,15 +247,18 @@ static int build_model(Instance *c) {
     }
     c->built = 1;
     memcpy(c->built_from, c->r, sizeof c->r);
-    c->built_from[VR_IN] = c->built_from[VR_OUT] = 0.0;
+    memcpy(c->built_from_i, c->i, sizeof c->i);
     c->built_engine = c->engine;
     return 0;
 }
 
 static int params_changed(const Instance *c) {
     int vr;
-    for (vr = 0; vr < NVR; vr++)
-        if (is_param(vr) && is_real(vr) && memcmp(&c->r[vr], &c->built_from[vr], sizeof(double)) != 0) return 1;
+    for (vr = 0; vr < NVR; vr++) {
+        if (!is_param(vr)) continue;
+        if (is_real(vr) ? memcmp(&c->r[vr], &c->built_from[vr], sizeof(double)) != 0
+                        : c->i[vr] != c->built_from_i[vr]) return 1;
+    }
     return c->engine != c->built_engine;
 }
 
@@ -263,7 +324,7 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
     c->r[VR_OUT] = 0.0;
     c->i[VR_STATUS] = 0;
     c->bad_before = 0;
-#if MODEL_KIND == KIND_COMP
+#if MODEL_KIND == KIND_COMP && !PASS_THROUGH
     {
         double slope = c->r[VR_KU] + c->r[VR_KH] * c->r[VR_RHO] * pow(c->r[VR_DT], c->r[VR_LAM2] - c->r[VR_LAM1]);
         if (!(slope > 0.0))
@@ -295,7 +356,7 @@ fmi2Status fmi2Reset(fmi2Component comp) {
 /* ------------------------------------------------------------- variables */
 
 static double output(const Instance *c) {
-#if MODEL_KIND == KIND_PLANT
+#if MODEL_KIND == KIND_PLANT && !PASS_THROUGH
     return c->built ? plant_output(&c->plant, c->r[VR_IN]) : 0.0;
 #else
     return c->r[VR_OUT];
@@ -309,7 +370,7 @@ static fmi2Status bad_vr(Instance *c, const char *fn, fmi2ValueReference vr) {
 
 /* a parameter may change until initialization ends (fixed variability) */
 static fmi2Status may_set(Instance *c, const char *fn, fmi2ValueReference vr) {
-    if (vr == VR_IN) return fmi2OK;
+    if (is_input((int)vr)) return fmi2OK;
     if (!is_param((int)vr)) {
         logf_(c, fmi2Error, "logStatusError", "%s: value reference %u is not an input or parameter",
               fn, (unsigned)vr);
@@ -379,28 +440,34 @@ fmi2Status fmi2SetBoolean(fmi2Component comp, const fmi2ValueReference vr[], siz
 
 fmi2Status fmi2GetString(fmi2Component comp, const fmi2ValueReference vr[], size_t n, fmi2String v[]) {
     size_t k;
+    int count, *slot;
+    const char **names;
     BEGIN("fmi2GetString", ANY & ~ST_ERROR)
     for (k = 0; k < n; k++) {
-        if (MODEL_KIND == KIND_PLANT || vr[k] != VR_MEMORY) return bad_vr(c, "fmi2GetString", vr[k]);
-        v[k] = ENGINE_NAMES[c->engine];
+        if (vr[k] >= NVR || !(names = string_names(c, (int)vr[k], &count, &slot)))
+            return bad_vr(c, "fmi2GetString", vr[k]);
+        v[k] = names[*slot];
     }
     return fmi2OK;
 }
 
 fmi2Status fmi2SetString(fmi2Component comp, const fmi2ValueReference vr[], size_t n, const fmi2String v[]) {
     size_t k;
-    int e;
+    int e, count, *slot;
+    const char **names;
     BEGIN("fmi2SetString", ST_INSTANTIATED | ST_INIT | ST_STEP)
     for (k = 0; k < n; k++) {
-        if (MODEL_KIND == KIND_PLANT || vr[k] != VR_MEMORY) return bad_vr(c, "fmi2SetString", vr[k]);
+        if (vr[k] >= NVR || !(names = string_names(c, (int)vr[k], &count, &slot)))
+            return bad_vr(c, "fmi2SetString", vr[k]);
         if (may_set(c, "fmi2SetString", vr[k]) != fmi2OK) return fmi2Error;
-        for (e = 0; e < 3; e++) if (v[k] && strcmp(v[k], ENGINE_NAMES[e]) == 0) break;
-        if (e == 3) {
-            logf_(c, fmi2Error, "logStatusError", "invalid parameters: memory = '%s' is not one of fast, "
-                  "exact, short (oustaloup is not available in the native FMUs)", v[k] ? v[k] : "(null)");
+        for (e = 0; e < count; e++) if (v[k] && strcmp(v[k], names[e]) == 0) break;
+        if (e == count) {
+            logf_(c, fmi2Error, "logStatusError", "invalid parameters: '%s' is not one of %s, %s, %s%s",
+                  v[k] ? v[k] : "(null)", names[0], names[1], names[2], vr[k] == VR_MEMORY
+                  ? " (oustaloup is not available in the native FMUs)" : "");
             return fmi2Error;
         }
-        c->engine = e;
+        *slot = e;
     }
     return fmi2OK;
 }
@@ -408,7 +475,11 @@ fmi2Status fmi2SetString(fmi2Component comp, const fmi2ValueReference vr[], size
 /* ---------------------------------------------------------------- stepping */
 
 static void one_step(Instance *c) {
-#if MODEL_KIND == KIND_HYST
+#if PASS_THROUGH
+    c->r[VR_OUT] = c->r[VR_IN];
+#elif MODEL_KIND == KIND_PID
+    c->r[VR_OUT] = pid_step(&c->pid, c->r[VR_IN], c->r[VR_Y], c->r[VR_UFF]);
+#elif MODEL_KIND == KIND_HYST
     c->r[VR_OUT] = fonbw_step(&c->hyst, c->r[VR_IN], 1);
 #elif MODEL_KIND == KIND_COMP
     c->r[VR_OUT] = comp_step(&c->comp, c->r[VR_IN]);
@@ -431,11 +502,11 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real h, fmi2Boolean no
               "is done", t, h, c->r[VR_DT], m);
         return fmi2Discard;
     }
-    if (!isfinite(c->r[VR_IN])) {
-        logf_(c, fmi2Discard, "logStatusDiscard", "doStep at t=%.17g refused: the input is not finite", t);
+    if (!isfinite(c->r[VR_IN]) || (MODEL_KIND == KIND_PID && !(isfinite(c->r[VR_Y]) && isfinite(c->r[VR_UFF])))) {
+        logf_(c, fmi2Discard, "logStatusDiscard", "doStep at t=%.17g refused: an input is not finite", t);
         return fmi2Discard;
     }
-#if MODEL_KIND == KIND_COMP
+#if MODEL_KIND == KIND_COMP && !PASS_THROUGH
     {
         double bad0 = c->comp.n_sat + c->comp.n_fail;
         for (j = 0; j < k; j++) one_step(c);
@@ -522,7 +593,11 @@ enum { H_MAGIC, H_KIND, H_PHASE, H_TIME, H_ENGINE, H_BUILT, H_BAD, H_NMODEL, H_S
 
 static size_t model_size(const Instance *c) {
     if (!c->built) return 0;
-#if MODEL_KIND == KIND_HYST
+#if PASS_THROUGH
+    return 0;
+#elif MODEL_KIND == KIND_PID
+    return 3;
+#elif MODEL_KIND == KIND_HYST
     return fonbw_state_size(&c->hyst);
 #elif MODEL_KIND == KIND_COMP
     return comp_state_size(&c->comp);
@@ -540,7 +615,11 @@ static void blob_write(const Instance *c, double *d) {
     d[H_ENGINE] = c->engine; d[H_BUILT] = c->built; d[H_BAD] = c->bad_before; d[H_NMODEL] = (double)nm;
     for (k = 0; k < NVR; k++) { d[H_SIZE + k] = c->r[k]; d[H_SIZE + NVR + k] = c->i[k]; }
     if (!nm) return;
-#if MODEL_KIND == KIND_HYST
+#if PASS_THROUGH
+#elif MODEL_KIND == KIND_PID
+    d += H_SIZE + 2 * NVR;
+    d[0] = c->pid.i; d[1] = c->pid.e1; d[2] = c->pid.d1;
+#elif MODEL_KIND == KIND_HYST
     fonbw_state_write(&c->hyst, d + H_SIZE + 2 * NVR);
 #elif MODEL_KIND == KIND_COMP
     comp_state_write(&c->comp, d + H_SIZE + 2 * NVR);
@@ -558,6 +637,12 @@ static fmi2Status blob_read(Instance *c, const double *d, size_t n) {
         return fmi2Error;
     }
     for (k = 0; k < NVR; k++) { c->r[k] = d[H_SIZE + k]; c->i[k] = (int)d[H_SIZE + NVR + k]; }
+    if (MODEL_KIND == KIND_PID && (c->i[VR_INTEGRATOR] < 0 || c->i[VR_INTEGRATOR] > 2 ||
+                                   c->i[VR_ANTI_WINDUP] < 0 || c->i[VR_ANTI_WINDUP] > 2)) {
+        logf_(c, fmi2Error, "logStatusError", "the FMU state does not belong to this FMU");
+        c->phase = ST_ERROR;
+        return fmi2Error;
+    }
     c->engine = (int)d[H_ENGINE];
     c->phase = (Phase)(int)d[H_PHASE];
     c->time = d[H_TIME];
@@ -565,7 +650,11 @@ static fmi2Status blob_read(Instance *c, const double *d, size_t n) {
     if (d[H_BUILT] == 0.0) { free_model(c); return fmi2OK; }
     if ((!c->built || params_changed(c)) && build_model(c) != 0) { c->phase = ST_ERROR; return fmi2Error; }
     d += H_SIZE + 2 * NVR;
-#if MODEL_KIND == KIND_HYST
+#if PASS_THROUGH
+    if (nm != 0) rc = -1;
+#elif MODEL_KIND == KIND_PID
+    if (nm != 3) rc = -1; else { c->pid.i = d[0]; c->pid.e1 = d[1]; c->pid.d1 = d[2]; }
+#elif MODEL_KIND == KIND_HYST
     rc = fonbw_state_read(&c->hyst, d, nm);
 #elif MODEL_KIND == KIND_COMP
     rc = comp_state_read(&c->comp, d, nm);

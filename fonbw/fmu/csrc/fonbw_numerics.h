@@ -56,6 +56,16 @@ typedef struct {
     double steps, n_sat, n_fail, status, y_model;
 } Compensator;
 
+/* PID of fonbw.pid.PIDStepper inside fonbw.loop.LoopController */
+enum { PID_FORWARD = 0, PID_BACKWARD = 1, PID_TUSTIN = 2 };
+enum { AW_BACK_CALCULATION = 0, AW_CLAMPING = 1, AW_NONE = 2 };
+
+typedef struct {
+    double kp, ki, kd, dt, lo, hi, Tf, Tt;
+    int integrator, anti_windup;
+    double i, e1, d1;   /* state: integrator, previous error, previous filtered derivative */
+} Pid;
+
 typedef struct {
     int n;
     double A[FONBW_MAX_STATES * FONBW_MAX_STATES], B[FONBW_MAX_STATES], C[FONBW_MAX_STATES], D;
@@ -91,5 +101,10 @@ int comp_state_read(Compensator *c, const double *s, size_t n);
 int plant_c2d(int n, const double *Ac, const double *Bc, double dt, double *Ad, double *Bd);
 double plant_output(const Plant *p, double u);
 void plant_advance(Plant *p, double u);
+
+/* Parameter check of PIDStepper: NULL if fine, else a message naming the parameter. */
+const char *pid_check(const Pid *p, char *msg, size_t len);
+/* One controller sample: u = sat(u_ff + PID(r - y)), the limits shifted by u_ff. */
+double pid_step(Pid *p, double r, double y, double u_ff);
 
 #endif
