@@ -1,17 +1,26 @@
-"""The loop's FMUs: built (or reused) by :mod:`fonbw.fmu.build`, and the
-parameter values a run sets on each of them.
+"""The loop's FMUs: built (or reused) by :mod:`fonbw.fmu.build` (pythonfmu)
+or :mod:`fonbw.fmu.native` (C), and the parameter values a run sets on each
+of them.
 
 Units: dt [s]; model parameters as in :mod:`fonbw.hysteresis`; controller as
 in :func:`fonbw.loop.controller_spec`.
 """
 from __future__ import annotations
 
+import getpass
+import os
+import tempfile
+from pathlib import Path
+
 from .controller import CONTROLLER_KEYS, controller_spec, plant_system
 
-__all__ = ["build_fmus", "fmu_settings"]
+__all__ = ["build_fmus", "build_native_fmus", "fmu_settings"]
+
+#: Roles of the loop -> kinds of :mod:`fonbw.fmu.native`.
+NATIVE_KINDS = {"hyst": "hysteresis", "comp": "compensator", "ctrl": "pid", "plant": "plant"}
 
 
-def build_fmus(out_dir=None, plant=None, hysteresis=True) -> dict:
+def build_fmus(out_dir=None, plant=None, hysteresis=True, native=False, models=None) -> dict:
     """Build (or reuse) the FMUs of the loop in `out_dir` (default: a
     per-user cache); returns {role: path}.
 
@@ -20,12 +29,79 @@ def build_fmus(out_dir=None, plant=None, hysteresis=True) -> dict:
     The controller and model parameters built into the FMUs are defaults
     that every run sets anew (:func:`fmu_settings`); the plant's matrices are
     built in.
+
+    With `native` the FMUs are the C ones (:func:`build_native_fmus`;
+    `models`, the (compensator, actuator) FONBW models, fix their number of
+    polynomial coefficients).
     """
+    if native:
+        return build_native_fmus(out_dir, plant, hysteresis, models)
     from ..fmu.build import loop_fmus
 
     spec = controller_spec(1e-3, 100.0)
     return loop_fmus({k: spec[k] for k in CONTROLLER_KEYS}, out_dir,
                      plant_system(plant) if plant is not None else None, hysteresis)
+
+
+def _model_resource(model):
+    """Resource of a native hysteresis or compensator FMU for `model` (a
+    FONBW, or None): the default model's, unless `model` has another number
+    of coefficients ku (fixed at build time), then its own."""
+    from ..compensate import DEFAULT_LIMITS
+    from ..data import DEFAULT_MODEL
+    from ..fmu.build import DEFAULT_DT, model_resource
+
+    res = model_resource(DEFAULT_MODEL, DEFAULT_DT)
+    if model is not None and len(model.params["ku"]) != len(res["model"]["params"]["ku"]):
+        res = {"model": model.as_fonbw().to_dict(), "dt": DEFAULT_DT,
+               "limits": [float(x) for x in DEFAULT_LIMITS]}
+    return res
+
+
+def native_resources(plant=None, hysteresis=True, models=None) -> dict:
+    """{role: (native kind, resource)} of the loop's native FMUs."""
+    from ..fmu.build import loop_plant_resource
+    from ..fmu.native import pid_resource
+
+    comp, truth = models if models is not None else (None, None)
+    out = {"hyst": ("hysteresis", _model_resource(truth)), "comp": ("compensator", _model_resource(comp)),
+           "ctrl": ("pid", pid_resource())}
+    sys_ = plant_system(plant) if plant is not None else None
+    if sys_ is not None:
+        out["plant"] = ("plant", loop_plant_resource(sys_, hysteresis))
+    return out
+
+
+def build_native_fmus(out_dir=None, plant=None, hysteresis=True, models=None, pass_through=False) -> dict:
+    """Build (or reuse) the native C FMUs of the loop for this platform;
+    returns {role: path}.
+
+    Roles as :func:`build_fmus`: ``hyst`` (FonbwHysteresisNative), ``comp``
+    (FonbwCompensatorNative), ``ctrl`` (FonbwPIDNative) and ``plant``
+    (FonbwLinearPlantNative of :func:`plant_system` of `plant`, if any).
+    Each FMU lands in a folder named by its GUID (a digest of its sources and
+    start values) under `out_dir`/native (default: a per-user cache), so a
+    build is reused until either changes. `pass_through` builds the
+    pass-through variants instead (:data:`fonbw.fmu.native.PASS_NAMES`: the
+    same interface, output = first input).
+    """
+    from ..fmu import native
+
+    if out_dir is None:
+        out_dir = Path(tempfile.gettempdir()) / f"fonbw-cosim-{getpass.getuser()}"
+    base = Path(out_dir) / "native"
+    names = native.PASS_NAMES if pass_through else native.NATIVE_NAMES
+    paths = {}
+    for role, (kind, res) in native_resources(plant, hysteresis, models).items():
+        key = native._guid(kind, res, pass_through).strip("{}")[:13]
+        path = base / key / f"{names[kind]}.fmu"
+        if not path.is_file():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
+                built = native.build_native_one(kind, res, tmp, [native.host_platform()], pass_through)
+                os.replace(built, path)
+        paths[role] = path
+    return paths
 
 
 def _fmu_parameters(role, cfg) -> dict:

@@ -5,7 +5,9 @@
 with the controller as library code. One stepping loop, :func:`jacobi`, runs
 both. ``"libcosim"`` hands the FMUs (the controller too, as the FonbwPID FMU)
 to libcosim's own fixed-step algorithm, an independent implementation of the
-same convention.
+same convention. The FMUs are the pythonfmu ones or, with ``native``, the C
+ones of :mod:`fonbw.fmu.native` (FonbwPIDNative as libcosim's controller):
+the masters take whatever :func:`fonbw.loop.fmus.build_fmus` built.
 
 Every master returns a :class:`Stepped`.
 

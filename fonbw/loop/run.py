@@ -208,7 +208,7 @@ def _result(scenario, mode, master, plant, stepped, dt, config) -> CosimResult:
 
 def run_cosim(scenario="sine5", mode="ff+fb", master="reference", T=None, dt=DT, models=None,
               plant="none", hysteresis=True, bandwidth_hz=BANDWIDTH_HZ, fmu_dir=None,
-              fmu_overrides=None) -> CosimResult:
+              fmu_overrides=None, native=False) -> CosimResult:
     """Run the closed loop once and measure the tracking.
 
     Parameters
@@ -246,6 +246,12 @@ def run_cosim(scenario="sine5", mode="ff+fb", master="reference", T=None, dt=DT,
         ``{block: {parameter: value}}`` set on the FMUs after the model's
         own parameters (fmpy and libcosim masters; e.g. a faulty internal
         step ``{"hyst": {"dt": 2e-4}}``).
+    native : bool
+        The fmpy and libcosim masters run the native C FMUs
+        (:mod:`fonbw.fmu.native`: FonbwHysteresisNative, FonbwCompensatorNative,
+        FonbwLinearPlantNative and, in libcosim, FonbwPIDNative) instead of the
+        pythonfmu ones; no Python runs inside the FMUs. The reference master
+        has no FMUs and ignores it.
 
     Returns
     -------
@@ -269,10 +275,11 @@ def run_cosim(scenario="sine5", mode="ff+fb", master="reference", T=None, dt=DT,
     if sys_ is not None:
         cfg["plant_mats"] = _plant_mats(sys_, hysteresis)
     if master != "reference":
-        cfg["fmus"] = build_fmus(fmu_dir, sys_, hysteresis)
+        cfg["fmus"] = build_fmus(fmu_dir, sys_, hysteresis, native=native, models=(model, truth))
     bad = set(cfg["overrides"]) - set(w.blocks)
     if bad:
         raise ValueError(f"fmu_overrides for block(s) {sorted(bad)} not in the loop {w.blocks}")
     stepped = run_master(master, w, cfg, n, rest, dt)
     config = _config(T, dt, hysteresis, k_lin, w, ctrl, model, truth, cfg.get("fmus", {}))
+    config["native"] = bool(native) and master != "reference"
     return _result(scenario, mode, master, plant, stepped, dt, config)
