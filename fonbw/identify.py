@@ -79,9 +79,10 @@ from typing import Callable, Mapping
 import numpy as np
 
 from fonbw.de import jde_minimize
+from fonbw.objective import Projected as _Projected, as_records as _as_records, rms_cost, simulate_record
 
 __all__ = ["KINDS", "IdentifyResult", "SearchSpace", "search_space", "identify",
-           "rms_cost"]
+           "rms_cost", "simulate_record"]
 
 KINDS = ("fonbw", "nbw", "cbw", "zhu")
 
@@ -113,6 +114,16 @@ class IdentifyResult:
     search : dict
         Search variables: ``names``, ``bounds``, ``log_scale`` and ``x``
         (best point).
+    burn_in : list of int
+        Samples left out at the start of each record (0: it starts at rest).
+    offsets : list of float
+        Sensor offset fitted for each record with a burn-in [µm] (0 otherwise);
+        the model's output plus it matches that record.
+    warnings : list of str
+        Search variables at a bound of the search or poorly determined.
+    intervals : dict
+        ``{search variable: (lo, hi)}``, approximate 95 % intervals from the
+        Gauss-Newton curvature of eq. (18) at the optimum.
     """
 
     model: object
@@ -125,6 +136,11 @@ class IdentifyResult:
     success: bool = True
     message: str = ""
     search: dict = field(default_factory=dict, repr=False)
+    burn_in: list = field(default_factory=list, repr=False)
+    offsets: list = field(default_factory=list, repr=False)
+    warnings: list = field(default_factory=list, repr=False)
+    invertibility: dict | None = None
+    intervals: dict = field(default_factory=dict, repr=False)
 
 
 @dataclass
@@ -154,45 +170,6 @@ class SearchSpace:
     basis_params: Callable = field(repr=False)
     fixed_columns: Callable = field(repr=False)
     final_params: Callable = field(repr=False)
-
-
-# --------------------------------------------------------------------------
-# Input checks
-# --------------------------------------------------------------------------
-
-def _as_records(records):
-    """List of checked (u, y, dt) tuples from a record or a list of records."""
-    if records is None:
-        raise ValueError("records: need at least one record with u and y")
-    if hasattr(records, "u") and hasattr(records, "y"):
-        records = [records]
-    records = list(records)
-    if not records:
-        raise ValueError("records: need at least one record with u and y")
-    out = []
-    for i, r in enumerate(records):
-        name = getattr(r, "path", None) or f"record {i}"
-        for attr in ("u", "y", "dt"):
-            if getattr(r, attr, None) is None:
-                raise ValueError(f"{name}: record has no {attr!r}")
-        u = np.ascontiguousarray(r.u, dtype=float).reshape(-1)
-        y = np.ascontiguousarray(r.y, dtype=float).reshape(-1)
-        dt = float(r.dt)
-        if u.shape != y.shape:
-            raise ValueError(f"{name}: u has {u.size} samples but y has {y.size}")
-        if u.size < 8:
-            raise ValueError(f"{name}: only {u.size} samples, need at least 8")
-        if not (np.all(np.isfinite(u)) and np.all(np.isfinite(y))):
-            raise ValueError(f"{name}: u and y must be finite")
-        if not (dt > 0.0 and np.isfinite(dt)):
-            raise ValueError(f"{name}: sampling period dt must be > 0, got {dt}")
-        out.append((u, y, dt))
-    U = max(float(np.max(np.abs(u))) for u, _, _ in out)
-    if U == 0.0:
-        raise ValueError("records: the input u is identically zero; nothing to identify")
-    if max(float(np.ptp(y)) for _, y, _ in out) == 0.0:
-        raise ValueError("records: the output y is constant; nothing to identify")
-    return out
 
 
 # --------------------------------------------------------------------------
@@ -341,104 +318,6 @@ def _override_bounds(space, bounds):
 
 
 # --------------------------------------------------------------------------
-# Objective
-# --------------------------------------------------------------------------
-
-def rms_cost(kind, theta, records, *, memory="fast", N=3):
-    """Eq. (18) of each row of ``theta`` over all records pooled [µm].
-
-    Each record is simulated from rest separately; divergent candidates
-    (NaN rows from the simulator) cost +inf. This is the plain objective, with
-    every parameter given (no linear solve).
-
-    Parameters
-    ----------
-    kind : str
-    theta : ndarray, shape (P, d)
-        Natural parameters in the order of ``fonbw.hysteresis.param_names``.
-    records : record or list of records
-
-    Returns
-    -------
-    ndarray, shape (P,)
-    """
-    from fonbw import hysteresis as hyst
-
-    recs = _as_records(records)
-    theta = np.ascontiguousarray(np.atleast_2d(theta), dtype=float)
-    sse = np.zeros(theta.shape[0])
-    M = 0
-    with np.errstate(over="ignore", invalid="ignore"):
-        for u, y, dt in recs:
-            Y = hyst.simulate_population(kind, theta, u, dt, memory=memory, N=N)
-            sse += np.sum((Y - y) ** 2, axis=1)
-            M += y.size
-        J = np.sqrt(sse / M)
-    return np.where(np.isfinite(J), J, np.inf)
-
-
-class _Projected:
-    """Eq. (18) minimized over the linear parameters, for a population.
-
-    With F the fixed regressors (thin QR: F = QR) and s the candidate's basis
-    signal, all records stacked: r_y = y − QQᵀy, r_s = s − QQᵀs,
-    G = r_s·r_y / r_s·r_s, residual r_y − G r_s, c = R⁻¹Qᵀ(y − G s).
-    """
-
-    def __init__(self, space, recs, pnames, kind, memory, N):
-        self.space, self.recs, self.pnames = space, recs, pnames
-        self.kind, self.memory, self.N = kind, memory, N
-        F = np.vstack([space.fixed_columns(u) for u, _, _ in recs])
-        self.y = np.concatenate([y for _, y, _ in recs])
-        self.Q, self.R = np.linalg.qr(F)
-        self.ry = self.y - self.Q @ (self.Q.T @ self.y)
-        self.M = self.y.size
-
-    def basis(self, X):
-        from fonbw import hysteresis as hyst
-
-        p = self.space.basis_params(np.atleast_2d(X))
-        theta = np.column_stack([np.asarray(p[k], dtype=float) for k in self.pnames])
-        return np.hstack([hyst.simulate_population(self.kind, theta, u, dt,
-                                                   memory=self.memory, N=self.N)
-                          for u, _, dt in self.recs])
-
-    def solve(self, X):
-        """(rms (P,), G (P,), c (P, q)) for search vectors X (P, d)."""
-        S = self.basis(X)
-        P = S.shape[0]
-        ok = np.all(np.isfinite(S), axis=1)
-        rms = np.full(P, np.inf)
-        G = np.zeros(P)
-        c = np.zeros((P, self.Q.shape[1]))
-        Qty = self.Q.T @ self.y
-        # Blocks of candidates bound the temporaries to a few (8, M) arrays.
-        for i0 in range(0, P, 8):
-            rows = np.arange(i0, min(i0 + 8, P))
-            rows = rows[ok[rows]]
-            if rows.size == 0:
-                continue
-            Sb = S[rows]
-            with np.errstate(over="ignore", invalid="ignore"):
-                QtS = Sb @ self.Q                      # (b, q)
-                rS = Sb - QtS @ self.Q.T
-                ss = np.einsum("ij,ij->i", rS, rS)
-                g = np.where(ss > 0.0, (rS @ self.ry) / np.where(ss > 0.0, ss, 1.0), 0.0)
-                rS *= -g[:, None]
-                rS += self.ry[None, :]                 # residual ry − g rS
-                J = np.sqrt(np.einsum("ij,ij->i", rS, rS) / self.M)
-                cc = np.linalg.solve(self.R, Qty[:, None] - QtS.T * g).T
-            good = np.isfinite(J) & np.all(np.isfinite(cc), axis=1)
-            rms[rows] = np.where(good, J, np.inf)
-            G[rows] = np.where(good, g, 0.0)
-            c[rows] = np.where(good[:, None], cc, 0.0)
-        return rms, G, c
-
-    def __call__(self, X):
-        return self.solve(X)[0]
-
-
-# --------------------------------------------------------------------------
 # Driver
 # --------------------------------------------------------------------------
 
@@ -447,7 +326,7 @@ def identify(records, kind: str = "fonbw", *, seed=None, max_evals: int = 5000,
              memory: str = "fast", N: int = 3, bounds: Mapping | None = None,
              reparametrize: bool = True, popsize: int | None = None,
              polish: bool | str = True, polish_maxfev: int | None = None,
-             callback=None) -> IdentifyResult:
+             callback=None, burn_in=None, for_compensation=None) -> IdentifyResult:
     """Identify a hysteresis model by minimizing eq. (18) with jDE.
 
     Parameters
@@ -477,6 +356,19 @@ def identify(records, kind: str = "fonbw", *, seed=None, max_evals: int = 5000,
         Overrides of search-variable bounds by name (module docstring).
     reparametrize : bool
         Search σ^(1/n)ρ instead of σ (module docstring).
+    burn_in : list of int, optional
+        Samples at the start of each record that do not count (weight 0): a
+        record that does not start at rest is still simulated from rest, and
+        its first samples depend on the unknown initial state. Each record
+        with a burn-in also gets its own constant sensor offset, solved with
+        the linear parameters (``IdentifyResult.offsets``).
+    for_compensation : float, optional
+        Step dt [s] the model will be inverted at by the causal compensator:
+        the linear parameters are then solved under the constraint that the
+        one-step slope u_k ↦ H_k at that step stays ≥ 0.3 × the data's
+        quasi-static gain at every training state, on both branches
+        (:mod:`fonbw.invertibility`). ``IdentifyResult.invertibility`` and the
+        model's saved JSON then record the slope reached.
     popsize, polish, polish_maxfev, callback
         Passed to :func:`fonbw.de.jde_minimize`; ``polish_maxfev`` defaults to
         30 % of ``max_evals`` (local refinement pays off here); ``popsize``
@@ -500,7 +392,10 @@ def identify(records, kind: str = "fonbw", *, seed=None, max_evals: int = 5000,
     pnames = list(hyst.param_names(kind, Nsim))
     polish_maxfev, popsize = _de_settings(space, max_evals, polish, polish_maxfev, popsize,
                                           workers, numba.config.NUMBA_NUM_THREADS)
-    proj = _Projected(space, recs, pnames, kind, memory, Nsim)
+    proj = _Projected(space, recs, pnames, kind, memory, Nsim, _check_burn_in(burn_in, recs))
+    if for_compensation is not None:
+        from fonbw.invertibility import ConstrainedProjection
+        proj = ConstrainedProjection(proj, for_compensation)
 
     old_threads = numba.get_num_threads()
     if workers is not None:
@@ -514,7 +409,21 @@ def identify(records, kind: str = "fonbw", *, seed=None, max_evals: int = 5000,
     finally:
         numba.set_num_threads(old_threads)
     wall = time.perf_counter() - t0
-    return _identify_result(proj, res, wall, records)
+    from fonbw.invertibility import annotate_result
+    return annotate_result(_identify_result(proj, res, wall, records), recs, for_compensation)
+
+
+def _check_burn_in(burn_in, recs):
+    """The per-record burn-ins as ints, checked against the record lengths."""
+    if burn_in is None:
+        return None
+    b = list(burn_in)
+    if len(b) != len(recs):
+        raise ValueError(f"burn_in: {len(b)} values for {len(recs)} records")
+    for i, (v, (u, _, _)) in enumerate(zip(b, recs)):
+        if isinstance(v, bool) or int(v) != v or not 0 <= v <= u.size - 8:
+            raise ValueError(f"burn_in[{i}] = {v!r}: need an integer in [0, {u.size - 8}] (samples)")
+    return [int(v) for v in b]
 
 
 def _de_settings(space, max_evals, polish, polish_maxfev, popsize, workers, max_threads):
@@ -545,6 +454,10 @@ def _identify_result(proj, res, wall, records):
     from fonbw import hysteresis as hyst
 
     kind, space, memory, Nsim = proj.kind, proj.space, proj.memory, proj.N
+    if not np.isfinite(res.fun) and (res.message or "").startswith("interrupted"):
+        # Ctrl-C before any candidate was simulated (e.g. while compiling the
+        # kernels): there is no best-so-far model, so the interrupt goes on.
+        raise KeyboardInterrupt("interrupted before any candidate was evaluated")
     if not np.isfinite(res.fun):
         raise RuntimeError(f"identify({kind!r}): every candidate diverged "
                            f"({res.nfev} evaluations); check the data and bounds")
@@ -552,9 +465,27 @@ def _identify_result(proj, res, wall, records):
     params = space.final_params(res.x, c[0], float(G[0]))
     theta = np.array([params[k] for k in proj.pnames], dtype=float)
     model = hyst.model_from_vector(kind, theta, N=Nsim, memory=memory)
-    rms = float(rms_cost(kind, theta[None, :], records, memory=memory, N=Nsim)[0])
+    offsets = [0.0] * len(proj.recs)
+    for j, i in enumerate(proj.offset_records):
+        offsets[i] = float(c[0][proj.q + j])
+    if any(proj.burn_in):
+        rms = _rms_after_burn_in(model, proj, offsets)
+    else:
+        rms = float(rms_cost(kind, theta[None, :], records, memory=memory, N=Nsim)[0])
     return IdentifyResult(model=model, kind=kind, params=params, rms=rms,
                           nfev=res.nfev, wall_time=wall, history=res.history,
                           success=res.success, message=res.message,
                           search={"names": space.names, "bounds": space.bounds,
-                                  "log_scale": space.log_scale, "x": res.x})
+                                  "log_scale": space.log_scale, "x": res.x},
+                          burn_in=list(proj.burn_in), offsets=offsets)
+
+
+def _rms_after_burn_in(model, proj, offsets) -> float:
+    """Eq. (18) over the samples after each record's burn-in, each record's fitted
+    offset [µm] added to the model output (simulated from rest on the whole record)."""
+    sse, M = 0.0, 0
+    for (u, y, dt), b, off in zip(proj.recs, proj.burn_in, offsets):
+        e = (simulate_record(model, u, dt, b) + off - y)[b:]
+        sse += float(e @ e)
+        M += e.size
+    return float(np.sqrt(sse / M))

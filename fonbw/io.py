@@ -1,38 +1,59 @@
 """Reading and writing the CSV records every command shares.
 
-A record is a CSV file with a header row and the columns ``t`` [s], ``u`` [V]
-and ``y`` [µm] (a measured experiment), or ``t`` and ``Hd`` [µm] (a desired
-trajectory). Other columns are ignored. Sampling must be uniform; the small
-timestamp jitter of real data loggers (``jitter_tol``, relative to the median
-step) is tolerated and the record is then treated as sampled at the median
-step. Anything else is refused with a :class:`DataError` that names the file,
-the row and the reason.
+A record is a CSV file with the columns ``t`` [s], ``u`` [V] and ``y`` [µm]
+(a measured experiment), or ``t`` and ``Hd`` [µm] (a desired trajectory).
+Other columns are ignored. Real logger files are read as they are written
+(:func:`read_record`): columns mapped by header name or position, with or
+without a header row, any of the usual delimiters (sniffed), units scaled,
+jittered or irregular time stamps resampled onto their median step (and
+reported), implausible magnitudes (a file in mV, nm or ms) flagged. Anything
+unusable is refused with a :class:`DataError` that names the file, the row
+and the reason.
 
 Writing is atomic: the data go to a temporary file beside the target, which
 is renamed over it only once complete, so an interrupted run never leaves a
-half-written output.
+half-written output; the file gets the permissions of the user's umask, like
+any file the user creates.
 """
 from __future__ import annotations
 
 import contextlib
-import csv
 import dataclasses
-import math
 import os
 import tempfile
+import warnings
 from typing import Iterable, Mapping
 
 import numpy as np
 
-__all__ = ["DataError", "Record", "read_record", "write_csv", "atomic_open", "rest_offset", "zero_at_rest",
-           "as_signal", "decimate"]
+from . import reader as _rd
+
+__all__ = ["DataError", "UnitWarning", "Record", "read_record", "parse_columns", "write_csv", "atomic_open",
+           "rest_offset", "zero_at_rest", "as_signal", "decimate", "TIME_UNITS", "LIMITS"]
 
 #: Minimum number of samples a record must hold to be usable.
 MIN_SAMPLES = 8
 
+#: Seconds per unit of the time column.
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6}
+
+#: Plausible magnitudes of a piezo record, after scaling: largest |u| [V],
+#: largest and smallest displacement range [µm], sampling step [s], duration [s].
+LIMITS = {"u_max": 1000.0, "y_range_max": 1000.0, "y_range_min": 1e-3, "dt_min": 1e-6, "dt_max": 1.0,
+          "duration_max": 3600.0}
+
+#: Largest gap in the time stamps (in median steps) that resampling bridges.
+MAX_GAP = 5.0
+
+parse_columns = _rd.parse_columns
+
 
 class DataError(ValueError):
     """Bad input data; the message names the file, the row and the reason."""
+
+
+class UnitWarning(UserWarning):
+    """A record's magnitudes suggest a unit other than V, µm and s."""
 
 
 @dataclasses.dataclass
@@ -42,7 +63,8 @@ class Record:
     Attributes
     ----------
     t : ndarray
-        Time stamps [s] as read (jitter kept).
+        Time stamps [s] as read (jitter kept), or the uniform grid when the
+        record was resampled.
     u : ndarray or None
         Actuator voltage [V].
     y : ndarray or None
@@ -53,6 +75,9 @@ class Record:
         Where it came from (``"<memory>"`` if built in code).
     hd : ndarray or None
         Desired displacement [µm] (trajectory files).
+    notes : list of str
+        What the reader did to the file's values (delimiter, header, unit
+        scaling, resampling), one sentence each, for the user to see.
     """
 
     t: np.ndarray
@@ -61,6 +86,7 @@ class Record:
     dt: float
     path: str = "<memory>"
     hd: np.ndarray | None = None
+    notes: list = dataclasses.field(default_factory=list, repr=False, compare=False)
 
     @property
     def n(self) -> int:
@@ -117,19 +143,43 @@ def decimate(rec: Record, q: int) -> Record:
                   path=rec.path + f" (every {q}th sample)", hd=keep(rec.hd))
 
 
-def read_record(path, need: Iterable[str] = ("u", "y"), jitter_tol: float = 1e-3) -> Record:
-    """Read a CSV record and check it.
+def read_record(path, need: Iterable[str] = ("u", "y"), jitter_tol: float = 1e-3, *, columns=None,
+                header: bool | None = None, delimiter: str | None = None, u_scale: float = 1.0,
+                y_scale: float = 1.0, time_unit: str = "s", resample: bool | None = None,
+                unit_check: str = "warn") -> Record:
+    """Read a logger file and check it.
 
     Parameters
     ----------
     path : str or PathLike
-        CSV file with a header row.
+        Delimited text file, one sample per row.
     need : iterable of str
         Columns required besides ``t`` (``("u", "y")`` for experiments,
         ``("Hd",)`` for trajectories, ``("u",)`` for simulation inputs).
     jitter_tol : float
-        Largest tolerated deviation of a time step from the median step,
-        relative to the median step.
+        Largest deviation of a time step from the median step, relative to
+        the median step, that is treated as uniform sampling at the median
+        step without interpolation.
+    columns : str or mapping, optional
+        ``"t=COL,u=COL,y=COL"`` or ``{"t": COL, ...}``, COL a header name or a
+        one-based position; default: columns named ``t``, ``u``, ``y``, ``Hd``.
+    header : bool, optional
+        Whether the first row is a header; default: detected (a row of
+        numbers is data).
+    delimiter : str, optional
+        ``","``, ``";"``, ``"\\t"`` or ``" "`` (runs of whitespace); default: sniffed.
+    u_scale, y_scale : float
+        Factors to V and to µm (0.001 for a voltage column in mV; 1e-3 for y in nm).
+        ``y_scale`` applies to ``Hd`` too.
+    time_unit : {"s", "ms", "us"}
+        Unit of the time column.
+    resample : bool, optional
+        True: interpolate u, y (linearly) onto the uniform grid of the median
+        step; False: refuse steps beyond `jitter_tol`; None (default): resample
+        only when a step is beyond `jitter_tol`. What was done is in ``notes``.
+    unit_check : {"warn", "error", "off"}
+        Magnitudes beyond :data:`LIMITS` issue a :class:`UnitWarning`, raise
+        a :class:`DataError`, or pass.
 
     Returns
     -------
@@ -139,93 +189,136 @@ def read_record(path, need: Iterable[str] = ("u", "y"), jitter_tol: float = 1e-3
     ------
     DataError
         Missing file or column, a value that is not a finite number, fewer
-        than ``MIN_SAMPLES`` rows, non-increasing or non-uniform time.
+        than ``MIN_SAMPLES`` rows, time not increasing, a gap of more than
+        ``MAX_GAP`` steps, implausible units with ``unit_check="error"``.
     """
     path = os.fspath(path)
     need = ["t"] + [c for c in need if c != "t"]
-    cols = _read_columns(path, need)
+    cols, linenos, notes = _read_columns(path, need, _rd.parse_columns(columns), header, delimiter)
     n = len(cols["t"])
     if n < MIN_SAMPLES:
         raise DataError(f"{path}: only {n} data row(s); at least {MIN_SAMPLES} are needed")
-    t = np.asarray(cols["t"], dtype=float)
-    dt = _uniform_step(path, t, jitter_tol)
-    arr = lambda c: np.asarray(cols[c], dtype=float) if c in cols else None
-    return Record(t=t, u=arr("u"), y=arr("y"), dt=dt, path=path, hd=arr("Hd"))
+    scales = _scales(u_scale, y_scale, time_unit)
+    arrs = {c: np.asarray(v, dtype=float) * scales[c] for c, v in cols.items()}
+    for c, f in scales.items():
+        if f != 1.0 and c in arrs:
+            notes.append(f"column {c} multiplied by {_rd.fmt(f)}"
+                         + (f" (time in {time_unit})" if c == "t" else ""))
+    t, dt, arrs = _time_base(path, arrs, linenos, jitter_tol, resample, notes)
+    rec = Record(t=t, u=arrs.get("u"), y=arrs.get("y"), dt=dt, path=path, hd=arrs.get("Hd"), notes=notes)
+    _check_units(rec, unit_check)
+    return rec
 
 
-def _read_columns(path, need) -> dict:
-    """The columns `need` (required: every value a finite number) and any of u,
-    y, Hd present (optional: unreadable values become NaN) as lists of floats."""
-    try:
-        fh = open(path, newline="", encoding="utf-8-sig")
-    except OSError as exc:
-        raise DataError(f"{path}: cannot open: {exc.strerror or exc}") from None
-    with fh:
-        reader = csv.reader(fh)
-        try:
-            header = next(reader)
-        except StopIteration:
-            raise DataError(f"{path}: empty file, expected a header row with columns {', '.join(need)}") from None
-        except (csv.Error, UnicodeDecodeError) as exc:
-            raise DataError(f"{path}: row 1: not readable as CSV ({exc})") from None
-        names = [h.strip() for h in header]
-        missing = [c for c in need if c not in names]
-        if missing:
-            raise DataError(
-                f"{path}: row 1: missing column(s) {', '.join(repr(c) for c in missing)}; "
-                f"header has {', '.join(repr(c) for c in names) or 'nothing'}"
-            )
-        idx = {c: names.index(c) for c in need}
-        optional = {c: names.index(c) for c in ("u", "y", "Hd") if c in names and c not in idx}
-        try:
-            return _parse_rows(path, reader, idx, optional)
-        except (csv.Error, UnicodeDecodeError) as exc:
-            raise DataError(f"{path}: row {reader.line_num}: not readable as CSV ({exc})") from None
+def _scales(u_scale, y_scale, time_unit) -> dict:
+    """Multipliers of each column to s, V and µm (checked)."""
+    if time_unit not in TIME_UNITS:
+        raise ValueError(f"time unit must be one of {', '.join(k for k in TIME_UNITS if k != 'µs')}, "
+                         f"got {time_unit!r}")
+    for name, v in (("u_scale", u_scale), ("y_scale", y_scale)):
+        if not (np.isfinite(v) and v != 0):
+            raise ValueError(f"{name} must be a finite non-zero factor, got {v!r}")
+    return {"t": TIME_UNITS[time_unit], "u": float(u_scale), "y": float(y_scale), "Hd": float(y_scale)}
 
 
-def _parse_rows(path, reader, idx, optional) -> dict:
-    cols = {c: [] for c in list(idx) + list(optional)}
-    allidx = {**idx, **optional}
-    for rowno, row in enumerate(reader, start=2):
-        if not row or all(not f.strip() for f in row):
-            continue
-        for c, j in allidx.items():
-            if j >= len(row):
-                if c in idx:
-                    raise DataError(f"{path}: row {rowno}: column {c!r} is missing (row has {len(row)} fields)")
-                cols[c].append(math.nan)
-                continue
-            field = row[j].strip()
-            try:
-                v = float(field)
-            except ValueError:
-                if c in idx:
-                    raise DataError(f"{path}: row {rowno}: column {c!r}: {field!r} is not a number") from None
-                v = math.nan
-            if not math.isfinite(v) and c in idx:
-                raise DataError(f"{path}: row {rowno}: column {c!r}: value {field!r} is not finite")
-            cols[c].append(v)
-    return cols
+def _read_columns(path, need, columns, header, delimiter):
+    """(columns as float lists, file line of each row, notes) of a logger file."""
+    lines = _rd.read_text(path, DataError)
+    notes = []
+    if delimiter is None:
+        delimiter = _rd.sniff_delimiter(lines)
+        if delimiter != ",":
+            notes.append(f"delimiter {_DELIM_NAMES[delimiter]} (detected)")
+    elif delimiter not in _DELIM_NAMES:
+        raise ValueError(f"delimiter must be one of {', '.join(map(repr, _DELIM_NAMES))}, got {delimiter!r}")
+    rows = _rd.split_rows(lines, delimiter)
+    first = next(rows, None)
+    if first is None:
+        raise DataError(f"{path}: empty file, expected a header row with columns {', '.join(need)}")
+    idx, optional, has_header = _rd.resolve_columns(path, first, delimiter, need, columns, header, DataError)
+    if not has_header:
+        import itertools
+
+        rows = itertools.chain([first], rows)
+        if header is None:
+            notes.append("no header row (row 1 is data)")
+    cols, linenos = _rd.parse_rows(path, rows, delimiter, idx, optional, DataError)
+    return cols, np.asarray(linenos), notes
 
 
-def _uniform_step(path, t, jitter_tol) -> float:
-    """The median time step [s], once every step is positive and within
-    `jitter_tol` (relative) of it; rows are named one-based with the header."""
+_DELIM_NAMES = {",": "comma", ";": "semicolon", "\t": "tab", " ": "whitespace"}
+
+
+def _time_base(path, arrs, linenos, jitter_tol, resample, notes):
+    """(t, dt, columns): the median step [s], and the columns on a uniform grid
+    when the steps deviate from it by more than `jitter_tol` or `resample`."""
+    t = arrs["t"]
     dts = np.diff(t)
     bad = np.flatnonzero(dts <= 0)
     if bad.size:
-        r = int(bad[0]) + 3  # +1 header, +1 one-based, +1 second sample of the pair
-        raise DataError(f"{path}: row {r}: time {t[bad[0] + 1]!r} does not increase (previous {t[bad[0]]!r})")
+        i = int(bad[0]) + 1
+        raise DataError(f"{path}: row {linenos[i]}: time {_rd.fmt(t[i])} does not increase "
+                        f"(previous {_rd.fmt(t[i - 1])})")
     dt = float(np.median(dts))
     dev = np.abs(dts - dt) / dt
-    bad = np.flatnonzero(dev > jitter_tol)
-    if bad.size:
-        r = int(bad[0]) + 3
+    worst = int(np.argmax(dev))
+    if resample is None:
+        resample = bool(dev[worst] > jitter_tol)
+    elif not resample and dev[worst] > jitter_tol:
         raise DataError(
-            f"{path}: row {r}: non-uniform sampling: step {dts[bad[0]]:.6g} s differs from the median "
-            f"step {dt:.6g} s by {100 * dev[bad[0]]:.3g} % (tolerance {100 * jitter_tol:.3g} %)"
-        )
-    return dt
+            f"{path}: row {linenos[worst + 1]}: non-uniform sampling: step {_rd.fmt(dts[worst])} s differs "
+            f"from the median step {_rd.fmt(dt)} s by {100 * dev[worst]:.3g} % (tolerance "
+            f"{100 * jitter_tol:.3g} %); resample it onto the median step (--resample)")
+    if not resample:
+        return t, dt, arrs
+    gap = np.flatnonzero(dts > MAX_GAP * dt)
+    if gap.size:
+        i = int(gap[0])
+        raise DataError(f"{path}: row {linenos[i + 1]}: a gap of {_rd.fmt(dts[i])} s ({dts[i] / dt:.3g} "
+                        f"steps of {_rd.fmt(dt)} s) in the time stamps; split the record there")
+    grid = t[0] + dt * np.arange(int(np.floor((t[-1] - t[0]) / dt * (1 + 1e-12))) + 1)
+    out = {c: (np.interp(grid, t, a) if c != "t" else grid) for c, a in arrs.items()}
+    k = np.clip(np.searchsorted(t, grid), 0, len(t) - 1)
+    near = np.minimum(np.abs(t[k] - grid), np.abs(t[np.maximum(k - 1, 0)] - grid))
+    moved = int(np.count_nonzero(near > 1e-9 * dt))
+    notes.append(f"resampled onto a uniform step of {_rd.fmt(dt)} s (the median step): steps deviated from it "
+                 f"by up to {100 * dev[worst]:.3g} % (RMS {100 * np.sqrt(np.mean(dev ** 2)):.3g} %); "
+                 f"{moved} of {grid.size} samples interpolated linearly ({len(t)} in the file)")
+    return grid, dt, out
+
+
+def _check_units(rec, mode):
+    """Warn about (or refuse) magnitudes that suggest mV, nm, m or ms."""
+    if mode not in ("warn", "error", "off"):
+        raise ValueError(f"unit_check must be 'warn', 'error' or 'off', got {mode!r}")
+    if mode == "off":
+        return
+    L, f = LIMITS, _rd.fmt
+    probs = []
+    if rec.u is not None and np.nanmax(np.abs(rec.u)) > L["u_max"]:
+        probs.append(f"|u| reaches {f(np.nanmax(np.abs(rec.u)))} V (> {f(L['u_max'])} V); if the column is "
+                     "in mV, scale it with --u-scale 0.001")
+    for c, a in (("y", rec.y), ("Hd", rec.hd)):
+        if a is None:
+            continue
+        span = float(np.nanmax(a) - np.nanmin(a))
+        if span > L["y_range_max"]:
+            probs.append(f"{c} spans {f(span)} µm (> {f(L['y_range_max'])} µm); if the column is in nm, "
+                         "scale it with --y-scale 0.001")
+        elif 0 < span < L["y_range_min"]:
+            probs.append(f"{c} spans {f(span)} µm (< {f(L['y_range_min'])} µm); if the column is in mm or m, "
+                         "scale it with --y-scale 1000 or 1e6")
+    if rec.dt < L["dt_min"]:
+        probs.append(f"the time step is {f(rec.dt)} s (< 1 µs); if time is in µs, pass --time-unit us")
+    elif rec.dt > L["dt_max"] or rec.t[-1] - rec.t[0] > L["duration_max"]:
+        probs.append(f"the time step is {f(rec.dt)} s over {f(rec.t[-1] - rec.t[0])} s (more than "
+                     f"{f(L['dt_max'])} s or {f(L['duration_max'])} s); if time is in ms, pass --time-unit ms")
+    if not probs:
+        return
+    msg = f"{rec.path}: implausible units: " + "; ".join(probs)
+    if mode == "error":
+        raise DataError(msg + " (or --no-unit-check to use the values as they are)")
+    warnings.warn(msg, UnitWarning, stacklevel=3)
 
 
 #: Fewest leading samples at constant input that count as a rest segment.
@@ -258,19 +351,30 @@ def zero_at_rest(rec: Record) -> tuple[Record, float]:
     return dataclasses.replace(rec, y=rec.y - y0), y0
 
 
+def _umask() -> int:
+    """The process's umask (read by setting it and restoring it at once)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def atomic_open(path, mode="w", **kw):
     """Open a temporary file beside `path` and rename it over `path` on success.
 
     On any exception (including KeyboardInterrupt) the temporary file is
-    removed and `path` is left as it was.
+    removed and `path` is left as it was. The file is created with mode
+    ``0o666 & ~umask``, as :func:`open` would create it.
     """
     path = os.fspath(path)
     d = os.path.dirname(os.path.abspath(path))
     os.makedirs(d, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.basename(path), dir=d)
     try:
+        # mkstemp creates the file 0600; an output is the user's file like any
+        # other, so it gets the mode open() would give it (0644 under umask 022).
         with os.fdopen(fd, mode, **kw) as fh:
+            os.fchmod(fh.fileno(), 0o666 & ~_umask())
             yield fh
         os.replace(tmp, path)
     except BaseException:

@@ -117,3 +117,108 @@ def test_compensate_round_trip_through_the_model(tmp_path):
     r = run("compensate", d / "model.json", tmp_path / "traj.csv", "-o", tmp_path / "u2.csv", "--umin", "5",
             "--umax", "1")
     assert r.returncode == 2 and "--umin" in r.stderr and not (tmp_path / "u2.csv").exists()
+
+
+def _popen(args, env=None, umask=None):
+    """The command line in a fresh process that handles SIGINT like a terminal's
+    foreground job (a background shell may have set it to be ignored)."""
+    import os
+    import signal
+
+    def pre():
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+        if umask is not None:
+            os.umask(umask)
+
+    return subprocess.Popen([sys.executable, "-m", "fonbw", *map(str, args)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, env=env, preexec_fn=pre)
+
+
+def _wait_for(proc, pattern, timeout=300):
+    """Read the process's stderr until `pattern` (a regex) appears; returns what was read."""
+    import os
+    import re
+    import select
+    import time
+
+    buf, t0 = b"", time.monotonic()
+    while not re.search(pattern.encode(), buf):
+        assert time.monotonic() - t0 < timeout and proc.poll() is None, buf.decode(errors="replace")
+        if select.select([proc.stderr], [], [], 0.2)[0]:
+            buf += os.read(proc.stderr.fileno(), 4096)
+    return buf
+
+
+def _interrupt(proc, seen):
+    import signal
+
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=300)
+    return proc.returncode, seen.decode() + err.decode()
+
+
+@pytest.fixture(scope="module")
+def small(files):
+    d, m, u, y = files
+    t = np.arange(600) * 1e-3
+    uu = 60 - 60 * np.cos(2 * np.pi * 2 * t)
+    write_csv(d / "small.csv", {"t": t, "u": uu, "y": m.simulate(uu, 1e-3)})
+    return d / "small.csv"
+
+
+def test_ctrl_c_on_a_cold_cache_exits_130_and_keeps_the_output(files, small, tmp_path):
+    import os
+
+    out = tmp_path / "model.json"
+    out.write_text('{"previous": "model"}\n')
+    before = out.read_bytes()
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "empty-cache")}
+    (tmp_path / "empty-cache").mkdir()
+    p = _popen(["identify", small, "-o", out, "--max-evals", 5000, "-q"], env=env)
+    seen = _wait_for(p, "Ctrl-C stops it")  # inside the command, compiling the kernels
+    code, err = _interrupt(p, seen)
+    assert code == 130, err
+    assert "Traceback" not in err and err.rstrip().endswith(
+        "fonbw identify: interrupted; no output was written; earlier outputs are as they were")
+    assert out.read_bytes() == before
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["empty-cache", "model.json"]
+
+
+def test_ctrl_c_mid_search_writes_the_partial_model_apart(files, small, tmp_path):
+    run("identify", small, "-o", tmp_path / "warm.json", "--max-evals", 20, "-q")  # compiled kernels cached
+    out = tmp_path / "model.json"
+    out.write_text('{"previous": "model"}\n')
+    p = _popen(["identify", small, "-o", out, "--max-evals", 100000])
+    seen = _wait_for(p, r"\| *[1-9]\d*/100000")  # the progress bar counts evaluations
+    code, err = _interrupt(p, seen)
+    assert code == 130 and "Traceback" not in err, err
+    assert out.read_text() == '{"previous": "model"}\n'
+    part = tmp_path / "model.json.partial.json"
+    assert f"fonbw identify: interrupted; {out} left as it was; the best model so far" in err
+    assert f"is in {part}" in err
+    assert fonbw.load_model(part).kind == "fonbw"
+
+
+@pytest.mark.parametrize("mask, mode", [(0o022, 0o644), (0o077, 0o600)])
+def test_outputs_follow_the_umask(files, tmp_path, mask, mode):
+    d = files[0]
+    p = _popen(["simulate", d / "model.json", d / "input.csv", "-o", tmp_path / "out.csv"], umask=mask)
+    out, err = p.communicate(timeout=300)
+    assert p.returncode == 0, err
+    assert out.decode().startswith(f"wrote {tmp_path / 'out.csv'}")
+    assert (tmp_path / "out.csv").stat().st_mode & 0o777 == mode
+
+
+@pytest.mark.parametrize("command", ["simulate", "identify", "validate", "compensate", "diagnose", "demo",
+                                     "bench", "figures", "reproduce", "build-fmu", "cosim"])
+def test_every_command_has_a_description_and_defaults(command):
+    r = run(command, "--help")
+    assert r.returncode == 0, r.stderr
+    head = r.stdout.split("\n\n")
+    assert len(head) > 2 and len(head[1].strip()) > 40  # usage, then the description
+    assert " um " not in r.stdout and "[um]" not in r.stdout  # one spelling: µm
+    if command in ("simulate", "identify", "validate", "compensate"):
+        assert "Records: delimited text" in r.stdout and "t [s]" in r.stdout and "u [V]" in r.stdout
+        assert "--columns t=COL,u=COL,y=COL" in r.stdout
+    if command == "identify":
+        assert "(default fonbw)" in r.stdout and "(default fast)" in r.stdout

@@ -40,7 +40,7 @@ def test_logger_jitter_is_tolerated(tmp_path):
     ("t,u,y\n" + "".join(f"{i*1e-3},1,2\n" for i in range(5)) + "0.005,nan,2\n" + "".join(f"{i*1e-3},1,2\n" for i in range(6, 12)), 7, "not finite"),
     ("t,u,y\n" + "".join(f"{i*1e-3},1,2\n" for i in range(5)) + "0.005,abc,2\n" + "".join(f"{i*1e-3},1,2\n" for i in range(6, 12)), 7, "'abc' is not a number"),
     ("t,u,y\n" + "".join(f"{i*1e-3},1,2\n" for i in range(5)) + "0.003,1,2\n" + "".join(f"{i*1e-3},1,2\n" for i in range(6, 12)), 7, "does not increase"),
-    ("t,u,y\n" + "".join(f"{i*1e-3},1,2\n" for i in range(5)) + "0.0052,1,2\n" + "".join(f"{i*1e-3},1,2\n" for i in range(6, 12)), 7, "non-uniform sampling"),
+    ("t,u,y\n" + "".join(f"{i*1e-3},1,2\n" for i in range(5)) + "0.0112,1,2\n" + "".join(f"{i*1e-3},1,2\n" for i in range(12, 18)), 7, "a gap of 0.0072 s \\(7.2 steps of 0.001 s\\)"),
     ("t,u,y\n" + "".join(f"{i*1e-3},1,2\n" for i in range(4)), None, "only 4 data row"),
     ("t,u,y\n" + "".join(f"{i*1e-3},1,2\n" for i in range(5)) + "0.005,1\n" + "".join(f"{i*1e-3},1,2\n" for i in range(6, 12)), 7, "column 'y' is missing"),
     ("", None, "empty file"),
@@ -94,5 +94,39 @@ def test_any_finite_values_round_trip(tmp_path_factory, vals):
     p = tmp_path_factory.mktemp("rt") / "v.csv"
     t = np.arange(len(vals)) * 1e-3
     write_csv(p, {"t": t, "u": vals, "y": vals})
-    r = read_record(p)
+    r = read_record(p, unit_check="off")
     assert np.array_equal(r.u, np.asarray(vals, dtype=float))
+
+
+def test_non_uniform_sampling_is_refused_without_resampling(tmp_path):
+    text = "t,u,y\n" + "".join(f"{i*1e-3},1,2\n" for i in range(5)) + "0.0052,1,2\n" + \
+        "".join(f"{i*1e-3},1,2\n" for i in range(6, 12))
+    p = _write(tmp_path / "j.csv", text)
+    with pytest.raises(DataError) as ei:
+        read_record(p, resample=False)
+    assert str(ei.value) == (f"{p}: row 7: non-uniform sampling: step 0.0012 s differs from the median step "
+                             "0.001 s by 20 % (tolerance 0.1 %); resample it onto the median step (--resample)")
+    r = read_record(p)  # by default: resampled, and said so
+    assert r.dt == pytest.approx(1e-3) and np.allclose(np.diff(r.t), 1e-3)
+    assert r.notes[-1].startswith("resampled onto a uniform step of 0.001 s (the median step): steps deviated "
+                                  "from it by up to 20 %")
+
+
+def test_messages_show_plain_numbers(tmp_path):
+    p = _write(tmp_path / "b.csv", "t,u,y\n" + "".join(f"{i*0.2000000110},1,2\n" for i in range(5))
+               + "0.200000011,1,2\n" + "".join(f"{i*0.2},1,2\n" for i in range(6, 12)))
+    with pytest.raises(DataError) as ei:
+        read_record(p, unit_check="off")
+    assert "np.float64" not in str(ei.value)
+    assert str(ei.value) == f"{p}: row 7: time 0.200000011 does not increase (previous 0.800000044)"
+
+
+def test_files_get_the_umask_mode(tmp_path):
+    for mask, mode in ((0o022, 0o644), (0o077, 0o600), (0o002, 0o664)):
+        old = os.umask(mask)
+        try:
+            p = tmp_path / f"m{mode:o}.csv"
+            write_csv(p, {"t": [0.0, 1.0]})
+        finally:
+            os.umask(old)
+        assert p.stat().st_mode & 0o777 == mode

@@ -37,6 +37,19 @@ COMMANDS = {
 }
 
 
+class _Formatter(argparse.RawDescriptionHelpFormatter):
+    """Descriptions kept as written; every option's default shown unless its
+    help already says it or there is none to show (None, False)."""
+
+    def _get_help_string(self, action):
+        h = action.help or ""
+        if "%(default)" in h or "default" in h or action.default in (None, False, argparse.SUPPRESS):
+            return h
+        if action.option_strings or action.nargs in ("?", "*"):
+            h += " (default %(default)s)"
+        return h
+
+
 class _Parser(argparse.ArgumentParser):
     def error(self, message):  # one line, exit 2 (argparse prints usage + message by default)
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
@@ -61,7 +74,7 @@ def build_parser(command=None) -> argparse.ArgumentParser:
             continue
         mod = _command_module(name)
         s = sub.add_parser(name, help=help_, description=mod.__doc__, epilog=getattr(mod, "EPILOG", None),
-                           formatter_class=argparse.RawDescriptionHelpFormatter)
+                           formatter_class=_Formatter)
         mod.add_arguments(s)
         s.set_defaults(func=mod.run)
     return p
@@ -72,7 +85,11 @@ def main(argv=None) -> int:
     args = sys.argv[1:] if argv is None else list(argv)
     command = next((a for a in args if not a.startswith("-")), None)
     parser = build_parser(command if command in COMMANDS else None)
-    ns = parser.parse_args(args)
+    try:
+        ns = parser.parse_args(args)
+    except KeyboardInterrupt:
+        print("fonbw: interrupted", file=sys.stderr)
+        return 130
     if not getattr(ns, "command", None):
         parser.print_help()
         return 2
@@ -85,8 +102,10 @@ def main(argv=None) -> int:
         msg = " ".join(str(exc).split()) or type(exc).__name__
         print(f"{prog}: error: {msg}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"{prog}: interrupted; no output was written", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        # a command that saved something on the way out says what in the exception
+        done = str(exc) or "no output was written; earlier outputs are as they were"
+        print(f"{prog}: interrupted; {done}", file=sys.stderr)
         return 130
     return 0
 

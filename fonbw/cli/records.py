@@ -1,35 +1,100 @@
 """Reading records and models for every command, with one set of defaults.
 
 Every command that reads measured records goes through :func:`read_records`,
-so the options (and what they default to) are the same everywhere: the sensor
-offset at rest before the drive starts is removed unless ``--keep-offset``.
+so the options (and what they default to) are the same everywhere: columns
+mapped by name or position, header detected, delimiter sniffed, units scaled,
+irregular time stamps resampled, implausible units refused (unless
+``--no-unit-check``), and the sensor offset at rest before the drive starts
+removed unless ``--keep-offset``. What the reader did is reported on stderr.
 """
 from __future__ import annotations
 
 import os
 import sys
 
-__all__ = ["CLIError", "add_record_arguments", "read_records", "load_model", "out_path", "CSV_FORMAT"]
+__all__ = ["CLIError", "add_record_arguments", "read_records", "load_model", "out_path", "CSV_FORMAT",
+           "start_state", "say"]
 
 #: What a record file looks like; shown in the help of every command that reads one.
-CSV_FORMAT = ("Records are CSV files with a header row: t [s] (uniform steps; logger jitter up to 0.1 % "
-              "of the step is tolerated), u [V] and y [µm] (measured displacement), or t and Hd [µm] "
-              "for a desired trajectory; other columns are ignored.")
+CSV_FORMAT = (
+    "Records: delimited text (comma, semicolon, tab or whitespace, detected), one sample per row, with "
+    "columns t [s], u [V] and y [µm] (measured displacement), or t and Hd [µm] for a desired trajectory; "
+    "other columns are ignored. Columns are found by header name (t, u, y, Hd; a unit suffix such as "
+    "'t [s]' is ignored) or mapped with --columns t=COL,u=COL,y=COL (COL a header name or a 1-based "
+    "position); a file without a header row needs --columns with positions (--no-header if its first row "
+    "could be read as names). Other units: --time-unit ms|us, --u-scale, --y-scale. Time steps within "
+    "0.1 % of the median step count as uniform; larger jitter or irregular stamps are resampled onto the "
+    "median step (linear interpolation, reported). Magnitudes that suggest other units (|u| > 1000 V, "
+    "y range > 1000 µm or < 0.001 µm, step < 1 µs or > 1 s, record longer than 1 h) are refused unless "
+    "--no-unit-check. A record need not start at rest: the tools detect it and say how they handled it.")
 
 
 class CLIError(Exception):
     """A user error, reported as one line on stderr with exit code 2."""
 
 
-def add_record_arguments(p, offset: bool = True) -> None:
-    """The record-reading options of a command (`offset`: it reads displacements)."""
+def say(msg: str) -> None:
+    """A report line on stderr (what was read, done or written besides the result)."""
+    print(msg, file=sys.stderr, flush=True)
+
+
+def _factor(text):
+    import argparse
+
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (v == v and abs(v) != float("inf") and v != 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: need a finite non-zero factor")
+    return v
+
+
+def add_record_arguments(p, offset: bool = True, y: bool | None = None) -> None:
+    """The record-reading options of a command (`offset`: it reads measured
+    displacements; `y`: it reads displacements at all, default `offset`).
+
+    Also sets the command's epilog to :data:`CSV_FORMAT` when it has none.
+    """
+    g = p.add_argument_group("reading records (CSV format below)")
+    g.add_argument("--columns", metavar="t=COL,u=COL,y=COL",
+                   help="which column is which: COL a header name or a 1-based position (default: the "
+                        "columns named t, u, y, Hd)")
+    g.add_argument("--no-header", dest="header", action="store_const", const=False, default=None,
+                   help="the first row is data, not names (default: detected; a row of numbers is data)")
+    g.add_argument("--delimiter", choices=("comma", "semicolon", "tab", "space"),
+                   help="field delimiter (default: detected)")
+    g.add_argument("--time-unit", choices=("s", "ms", "us"), default="s", help="unit of the time column")
+    g.add_argument("--u-scale", type=_factor, default=1.0, metavar="F",
+                   help="multiply u by F to get V (0.001 for a column in mV)")
+    if offset if y is None else y:
+        g.add_argument("--y-scale", type=_factor, default=1.0, metavar="F",
+                       help="multiply y (and Hd) by F to get µm (0.001 for nm, 1000 for mm)")
+    g.add_argument("--resample", action="store_true",
+                   help="always interpolate onto the median time step (default: only when a step deviates "
+                        "from it by more than 0.1 %%)")
+    g.add_argument("--no-unit-check", dest="unit_check", action="store_const", const="off", default="error",
+                   help="use magnitudes that look like other units (mV, nm, ms) as they are")
     if offset:
-        p.add_argument("--keep-offset", action="store_true",
+        g.add_argument("--keep-offset", action="store_true",
                        help="keep the sensor offset at rest (by default the mean y over the samples before "
                             "the drive starts is removed from each record)")
+    if p.epilog is None:
+        p.epilog = CSV_FORMAT
 
 
-def read_records(paths, ns=None, need=("u", "y")):
+_DELIMS = {"comma": ",", "semicolon": ";", "tab": "\t", "space": " "}
+
+
+def reader_options(ns) -> dict:
+    """Keyword arguments of :func:`fonbw.io.read_record` from parsed options."""
+    g = lambda k, d=None: getattr(ns, k, d) if ns is not None else d
+    return dict(columns=g("columns"), header=g("header"), delimiter=_DELIMS.get(g("delimiter")),
+                u_scale=g("u_scale", 1.0), y_scale=g("y_scale", 1.0), time_unit=g("time_unit", "s"),
+                resample=True if g("resample") else None, unit_check=g("unit_check", "error"))
+
+
+def read_records(paths, ns=None, need=("u", "y"), offsets=False):
     """Read and check the records at `paths` as the options `ns` say.
 
     Parameters
@@ -40,25 +105,66 @@ def read_records(paths, ns=None, need=("u", "y")):
         The command's parsed options (:func:`add_record_arguments`).
     need : tuple of str
         Columns required besides ``t``.
+    offsets : bool
+        Also return the offset removed from each record [µm].
 
     Returns
     -------
     list of fonbw.io.Record
-        One per file, offsets at rest removed from y unless ``--keep-offset``
-        (each removal is reported on stderr).
+        One per file, offsets at rest removed from y unless ``--keep-offset``;
+        each note of the reader and each removal is reported on stderr.
+    list of float
+        With `offsets`: the offset removed from each [µm] (0 if none).
     """
     from ..io import read_record, zero_at_rest
 
-    recs = [read_record(p, need=need) for p in paths]
+    opts = reader_options(ns)
+    recs = []
+    for p in paths:
+        r = read_record(p, need=need, **opts)
+        for note in r.notes:
+            say(f"{r.path}: {note}")
+        recs.append(r)
     if "y" not in need or getattr(ns, "keep_offset", False):
-        return recs
-    out = []
+        return (recs, [0.0] * len(recs)) if offsets else recs
+    out, y0s = [], []
     for r in recs:
         r2, y0 = zero_at_rest(r)
         if y0:
-            print(f"{r.path}: removed the offset at rest, {y0:.4g} µm", file=sys.stderr)
+            say(f"{r.path}: removed the offset at rest, {y0:.4g} µm")
         out.append(r2)
-    return out
+        y0s.append(y0)
+    return (out, y0s) if offsets else out
+
+
+def start_state(rec):
+    """Where the record starts: ``fonbw.start.start_state(rec)`` (at_rest,
+    burn_in [samples], reason)."""
+    try:
+        from ..start import start_state as _start
+    except ImportError:  # an installation without the detector: the plain rule below
+        return _start_fallback(rec)
+    return _start(rec)
+
+
+def _start_fallback(rec):
+    """At rest when the input starts at 0 V (within 1 % of its largest magnitude);
+    otherwise the burn-in lasts until the input has come within 2 % of both its
+    extremes, after which the hysteresis state no longer depends on where it
+    started (wiping out)."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    u = rec.u
+    U = float(np.max(np.abs(u)))
+    if U == 0 or abs(u[0]) <= 0.01 * U:
+        return SimpleNamespace(at_rest=True, burn_in=0, reason="the input starts at 0 V")
+    span = float(np.ptp(u))
+    hi = int(np.argmax(u >= u.max() - 0.02 * span))
+    lo = int(np.argmax(u <= u.min() + 0.02 * span))
+    return SimpleNamespace(at_rest=False, burn_in=max(hi, lo) + 1,
+                           reason=f"not at rest: the input starts at {float(u[0]):.4g} V")
 
 
 def load_model(path):

@@ -5,7 +5,7 @@ OUT.csv with columns t [s], u [V] and y [µm], the model's displacement.
 """
 from __future__ import annotations
 
-from .records import load_model, out_path, read_records
+from .records import add_record_arguments, load_model, out_path, read_records
 
 
 def add_arguments(p) -> None:
@@ -14,7 +14,9 @@ def add_arguments(p) -> None:
     p.add_argument("model", metavar="MODEL.json", help="model saved by identify (any kind)")
     p.add_argument("input", metavar="INPUT.csv", help="input record: columns t [s], u [V]")
     p.add_argument("-o", "--output", required=True, metavar="OUT.csv", help="where to write t, u, y")
-    p.add_argument("--memory", choices=ENGINES, help="override the model's fractional memory engine")
+    p.add_argument("--memory", choices=ENGINES, help="override the model's fractional memory engine "
+                   "(default: the model's)")
+    add_record_arguments(p, offset=False)
 
 
 def run(ns) -> None:

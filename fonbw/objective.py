@@ -1,0 +1,256 @@
+"""The objective of identification, eq. (18), plain and with the linear
+parameters solved (variable projection); see :mod:`fonbw.identify`.
+
+Records that do not start at rest are simulated after a smooth lead-in from
+0 V to their first input (:func:`lead_in`) and count only after their burn-in,
+each with its own constant sensor offset among the linear parameters.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["rms_cost", "Projected", "lead_in", "as_records", "simulate_record", "score"]
+
+#: Longest lead-in [s].
+LEAD_IN_MAX = 1.0
+
+
+def lead_in(u, dt) -> np.ndarray:
+    """Input [V] that brings a model from rest to a record's first input `u[0]`.
+
+    A raised-cosine ramp from 0 V to u[0], as long as the record's input takes
+    to move by |u[0]| at its median rate (at least 10 samples, at most
+    ``LEAD_IN_MAX``). Started with a jump instead, a fractional model's memory
+    would hold that jump for a long time (the GL weights decay as a power of
+    time), well after the hysteresis state has forgotten the start.
+
+    Parameters
+    ----------
+    u : ndarray
+        The record's input [V].
+    dt : float
+        Sampling step [s].
+
+    Returns
+    -------
+    ndarray
+        The lead-in samples (none when u[0] = 0).
+    """
+    u0 = float(u[0])
+    if u0 == 0.0:
+        return np.zeros(0)
+    rate = float(np.median(np.abs(np.diff(u)))) / dt
+    T = abs(u0) / rate if rate > 0 else LEAD_IN_MAX
+    L = int(np.clip(round(T / dt), 10, max(10, round(LEAD_IN_MAX / dt))))
+    return u0 * 0.5 * (1.0 - np.cos(np.pi * np.arange(L) / L))
+
+
+def simulate_record(model, u, dt, burn_in=0) -> np.ndarray:
+    """A model's output [µm] over a record's input `u` [V]: from rest, after
+    :func:`lead_in` when the record has a burn-in (it does not start at rest)."""
+    if burn_in <= 0:
+        return model.simulate(u, dt)
+    pre = lead_in(u, dt)
+    return model.simulate(np.concatenate([pre, u]), dt)[pre.size:]
+
+# --------------------------------------------------------------------------
+# Input checks
+# --------------------------------------------------------------------------
+
+def as_records(records):
+    """List of checked (u, y, dt) tuples from a record or a list of records."""
+    if records is None:
+        raise ValueError("records: need at least one record with u and y")
+    if hasattr(records, "u") and hasattr(records, "y"):
+        records = [records]
+    records = list(records)
+    if not records:
+        raise ValueError("records: need at least one record with u and y")
+    out = []
+    for i, r in enumerate(records):
+        name = getattr(r, "path", None) or f"record {i}"
+        for attr in ("u", "y", "dt"):
+            if getattr(r, attr, None) is None:
+                raise ValueError(f"{name}: record has no {attr!r}")
+        u = np.ascontiguousarray(r.u, dtype=float).reshape(-1)
+        y = np.ascontiguousarray(r.y, dtype=float).reshape(-1)
+        dt = float(r.dt)
+        if u.shape != y.shape:
+            raise ValueError(f"{name}: u has {u.size} samples but y has {y.size}")
+        if u.size < 8:
+            raise ValueError(f"{name}: only {u.size} samples, need at least 8")
+        if not (np.all(np.isfinite(u)) and np.all(np.isfinite(y))):
+            raise ValueError(f"{name}: u and y must be finite")
+        if not (dt > 0.0 and np.isfinite(dt)):
+            raise ValueError(f"{name}: sampling period dt must be > 0, got {dt}")
+        out.append((u, y, dt))
+    U = max(float(np.max(np.abs(u))) for u, _, _ in out)
+    if U == 0.0:
+        raise ValueError("records: the input u is identically zero; nothing to identify")
+    if max(float(np.ptp(y)) for _, y, _ in out) == 0.0:
+        raise ValueError("records: the output y is constant; nothing to identify")
+    return out
+
+
+# --------------------------------------------------------------------------
+# Objective
+# --------------------------------------------------------------------------
+
+def rms_cost(kind, theta, records, *, memory="fast", N=3):
+    """Eq. (18) of each row of ``theta`` over all records pooled [µm].
+
+    Each record is simulated from rest separately; divergent candidates
+    (NaN rows from the simulator) cost +inf. This is the plain objective, with
+    every parameter given (no linear solve).
+
+    Parameters
+    ----------
+    kind : str
+    theta : ndarray, shape (P, d)
+        Natural parameters in the order of ``fonbw.hysteresis.param_names``.
+    records : record or list of records
+
+    Returns
+    -------
+    ndarray, shape (P,)
+    """
+    from fonbw import hysteresis as hyst
+
+    recs = as_records(records)
+    theta = np.ascontiguousarray(np.atleast_2d(theta), dtype=float)
+    sse = np.zeros(theta.shape[0])
+    M = 0
+    with np.errstate(over="ignore", invalid="ignore"):
+        for u, y, dt in recs:
+            Y = hyst.simulate_population(kind, theta, u, dt, memory=memory, N=N)
+            sse += np.sum((Y - y) ** 2, axis=1)
+            M += y.size
+        J = np.sqrt(sse / M)
+    return np.where(np.isfinite(J), J, np.inf)
+
+
+class Projected:
+    """Eq. (18) minimized over the linear parameters, for a population.
+
+    With F the fixed regressors (thin QR: F = QR) and s the candidate's basis
+    signal, all records stacked: r_y = y − QQᵀy, r_s = s − QQᵀs,
+    G = r_s·r_y / r_s·r_s, residual r_y − G r_s, c = R⁻¹Qᵀ(y − G s).
+    """
+
+    def __init__(self, space, recs, pnames, kind, memory, N, burn_in=None):
+        self.space, self.recs, self.pnames = space, recs, pnames
+        self.kind, self.memory, self.N = kind, memory, N
+        self.burn_in = list(burn_in) if burn_in is not None else [0] * len(recs)
+        F = np.vstack([space.fixed_columns(u)[b:] for (u, _, _), b in zip(recs, self.burn_in)])
+        self.q = F.shape[1]
+        # A record that does not start at rest has an unknown sensor offset: one
+        # constant regressor on its samples (the Zhu model's x0 is a constant
+        # already, so it needs one fewer when every record has one).
+        self.offset_records = [i for i, b in enumerate(self.burn_in) if b > 0]
+        if kind == "zhu" and len(self.offset_records) == len(recs):
+            self.offset_records = self.offset_records[1:]
+        if self.offset_records:
+            sizes = [y.size - b for (_, y, _), b in zip(recs, self.burn_in)]
+            ends = np.cumsum(sizes)
+            ind = np.zeros((F.shape[0], len(self.offset_records)))
+            for j, i in enumerate(self.offset_records):
+                ind[ends[i] - sizes[i]:ends[i], j] = 1.0
+            F = np.hstack([F, ind])
+        self.y = np.concatenate([y[b:] for (_, y, _), b in zip(recs, self.burn_in)])
+        self.Q, self.R = np.linalg.qr(F)
+        self.ry = self.y - self.Q @ (self.Q.T @ self.y)
+        self.M = self.y.size
+
+    def basis(self, X):
+        from fonbw import hysteresis as hyst
+
+        p = self.space.basis_params(np.atleast_2d(X))
+        theta = np.column_stack([np.asarray(p[k], dtype=float) for k in self.pnames])
+        out = []
+        for (u, _, dt), b in zip(self.recs, self.burn_in):
+            pre = lead_in(u, dt) if b > 0 else np.zeros(0)
+            S = hyst.simulate_population(self.kind, theta, np.concatenate([pre, u]), dt,
+                                         memory=self.memory, N=self.N)
+            out.append(S[:, pre.size + b:])
+        return np.hstack(out)
+
+    def solve(self, X):
+        """(rms (P,), G (P,), c (P, q)) for search vectors X (P, d)."""
+        S = self.basis(X)
+        P = S.shape[0]
+        ok = np.all(np.isfinite(S), axis=1)
+        rms = np.full(P, np.inf)
+        G = np.zeros(P)
+        c = np.zeros((P, self.Q.shape[1]))
+        Qty = self.Q.T @ self.y
+        # Blocks of candidates bound the temporaries to a few (8, M) arrays.
+        for i0 in range(0, P, 8):
+            rows = np.arange(i0, min(i0 + 8, P))
+            rows = rows[ok[rows]]
+            if rows.size == 0:
+                continue
+            Sb = S[rows]
+            with np.errstate(over="ignore", invalid="ignore"):
+                QtS = Sb @ self.Q                      # (b, q)
+                rS = Sb - QtS @ self.Q.T
+                ss = np.einsum("ij,ij->i", rS, rS)
+                g = np.where(ss > 0.0, (rS @ self.ry) / np.where(ss > 0.0, ss, 1.0), 0.0)
+                rS *= -g[:, None]
+                rS += self.ry[None, :]                 # residual ry − g rS
+                J = np.sqrt(np.einsum("ij,ij->i", rS, rS) / self.M)
+                cc = np.linalg.solve(self.R, Qty[:, None] - QtS.T * g).T
+            good = np.isfinite(J) & np.all(np.isfinite(cc), axis=1)
+            rms[rows] = np.where(good, J, np.inf)
+            G[rows] = np.where(good, g, 0.0)
+            c[rows] = np.where(good[:, None], cc, 0.0)
+        return rms, G, c
+
+    def __call__(self, X):
+        return self.solve(X)[0]
+
+
+
+
+def score(model, rec, burn_in=0, history=None, history_burn_in=0) -> dict:
+    """Errors of `model` on one record, scored after its burn-in.
+
+    Parameters
+    ----------
+    model : hysteresis model
+    rec : fonbw.io.Record
+        With u [V] and y [µm].
+    burn_in : int
+        Samples left out at the start (a record not at rest, no history): the
+        model runs through :func:`lead_in` first and the mean error after the
+        burn-in, the unknown sensor offset, is removed.
+    history : fonbw.io.Record, optional
+        The record just before `rec`, run first in one simulation with it;
+        then `rec` is scored whole, and the offset (when the history does not
+        start at rest) is the mean error over the history after
+        `history_burn_in` samples.
+    history_burn_in : int
+
+    Returns
+    -------
+    dict
+        rms [µm], rms_percent [% of the scored range of y], max_abs [µm],
+        range [µm], offset_um (fitted offset [µm] added to the model, None if
+        none was fitted), yhat (model output over `rec` [µm], offset included).
+    """
+    off = None
+    if history is not None:
+        full = simulate_record(model, np.concatenate([history.u, rec.u]), rec.dt, history_burn_in)
+        yhat, burn_in = full[history.n:], 0
+        if history_burn_in > 0:
+            off = -float(np.mean((full[:history.n] - history.y)[history_burn_in:]))
+    else:
+        yhat = simulate_record(model, rec.u, rec.dt, burn_in)
+        if burn_in > 0:
+            off = -float(np.mean((yhat - rec.y)[burn_in:]))
+    if off is not None:
+        yhat = yhat + off
+    e = (yhat - rec.y)[burn_in:]
+    rng = float(np.ptp(rec.y[burn_in:]))
+    rms = float(np.sqrt(np.mean(e ** 2)))
+    return {"rms": rms, "rms_percent": 100.0 * rms / rng if rng > 0 else float("inf"),
+            "max_abs": float(np.max(np.abs(e))), "range": rng, "offset_um": off, "yhat": yhat}
