@@ -15,6 +15,7 @@ import json
 import math
 import os
 import time
+import warnings
 
 import numpy as np
 
@@ -22,11 +23,11 @@ from . import hysteresis as _hy
 from .bench import Bench
 from .compensate import DEFAULT_LIMITS, OK, check_model, compensate
 from .paper import PAPER_TABLE2, PAPER_TABLE4, SINE_FREQS
-from .signals import TRAJECTORIES, eq19_input, sine_input
+from .signals import TRAJECTORIES, eq19_input, multi_input, sine_input
 from .io import Record, atomic_open, decimate
 
 __all__ = ["identify_models", "table1", "table2", "table3", "reproduce", "KIND_LABELS",
-           "table4", "format_table4", "reproduce_table4"]
+           "table4", "format_table4", "reproduce_table4", "table4_training", "TABLE4_KINDS"]
 
 KIND_LABELS = {"fonbw": "FONBW", "cbw": "CBW", "zhu": "Zhu et al. (eq. 20)", "nbw": "asymmetric NBW"}
 
@@ -260,12 +261,23 @@ def _table4_specs(models, limits, explicit):
     return specs
 
 
-def _table4_row(mname, tname, pname, yp, Hd, res):
+def _slope_min(m, dt):
+    """Smallest one-step slope [µm/V] of m at dt (None for the Zhu model)."""
+    if isinstance(m, _hy.Zhu2016):
+        return None
+    from .invertibility import check_invertible
+    return check_invertible(m, dt)[1]
+
+
+def _table4_row(mname, tname, pname, yp, Hd, res, slope=None):
     """One row of :func:`table4`: output `yp` [µm] of plant `pname` driven by
     the compensation `res` of `Hd` [µm]."""
     e = yp - Hd
     ok = res.status == OK
     return {"compensator": mname, "trajectory": tname, "plant": pname,
+            "slope_min": slope,
+            "rms_du": _rms(np.diff(res.u)),
+            "max_model_error": float(np.max(np.abs(res.residual))) if len(Hd) else 0.0,
             "rms_error": _rms(e), "max_error": float(np.max(np.abs(e))),
             "rms_error_solved": _rms(e[ok]),
             "rms_input": _rms(res.u),
@@ -275,7 +287,7 @@ def _table4_row(mname, tname, pname, yp, Hd, res):
 
 
 def table4(bench, models, dt=None, out_dir=None, *, T=2.0, limits=DEFAULT_LIMITS,
-           explicit=False, ideal=True, trajectories=None) -> list[dict]:
+           explicit=False, ideal=True, trajectories=None, preview=False) -> list[dict]:
     """Reproduce Table 4: feedforward tracking of the two trajectories on a bench.
 
     Each model's compensator (:func:`fonbw.compensate`, from rest) turns H_d into a
@@ -300,8 +312,10 @@ def table4(bench, models, dt=None, out_dir=None, *, T=2.0, limits=DEFAULT_LIMITS
         and error of every compensator).
     T : float
         Duration of each trajectory [s].
-    limits, explicit
-        Passed to :func:`fonbw.compensate`.
+    limits, explicit, preview
+        Passed to :func:`fonbw.compensate` (``limits=None``: each model's
+        training range; ``preview``: the non-causal stable inversion, not for
+        the Zhu model).
     ideal : bool
         Also run each compensator on its own model as the plant (rows with
         ``plant="model"``): tracks to the solver tolerance unless saturated.
@@ -313,7 +327,10 @@ def table4(bench, models, dt=None, out_dir=None, *, T=2.0, limits=DEFAULT_LIMITS
     -------
     list of dict
         One row per (compensator, trajectory[, plant]) with ``compensator``,
-        ``trajectory``, ``plant`` ("bench" or "model"), ``rms_error`` [µm],
+        ``trajectory``, ``plant`` ("bench" or "model"), ``slope_min`` (the
+        model's smallest one-step slope u_k → H_k at dt [µm/V], None for
+        Zhu), ``rms_du`` (RMS sample-to-sample change of u [V]),
+        ``max_model_error`` (max |model ∘ compensator − H_d| [µm]), ``rms_error`` [µm],
         ``max_error`` [µm], ``rms_error_solved`` [µm] (over the samples whose
         equation was solved, i.e. neither saturated nor unconverged),
         ``rms_input`` [V], ``saturated`` and ``not_converged`` (sample
@@ -326,6 +343,11 @@ def table4(bench, models, dt=None, out_dir=None, *, T=2.0, limits=DEFAULT_LIMITS
     if not models:
         raise ValueError("models must name at least one model to compensate with")
     specs = _table4_specs(models, limits, explicit)
+    if preview:
+        for m, opts in specs.values():
+            if not isinstance(m, _hy.Zhu2016):
+                opts["preview"] = True
+    slopes = {name: _slope_min(m, dt) for name, (m, _) in specs.items()}
     T = float(T)
     if not (math.isfinite(T) and T > 0):
         raise ValueError(f"T must be a positive duration [s], got {T!r}")
@@ -335,11 +357,15 @@ def table4(bench, models, dt=None, out_dir=None, *, T=2.0, limits=DEFAULT_LIMITS
     for tname, fn in trajs.items():
         Hd = np.asarray(fn(t), dtype=float)
         for mname, (m, opts) in specs.items():
-            res = compensate(m, Hd, dt, **opts)
+            with warnings.catch_warnings():
+                # non-invertible models are the point of the slope column
+                warnings.simplefilter("ignore", RuntimeWarning)
+                res = compensate(m, Hd, dt, **opts)
             y = np.asarray(bench.run(res.u), dtype=float)
             traces[tname, mname] = (Hd, y)
             plants = [("bench", y)] + ([("model", res.y_model)] if ideal else [])
-            rows += [_table4_row(mname, tname, pname, yp, Hd, res) for pname, yp in plants]
+            rows += [_table4_row(mname, tname, pname, yp, Hd, res, slopes[mname])
+                     for pname, yp in plants]
     if out_dir is not None:
         _write_table4(out_dir, rows, traces, t, list(trajs), list(specs))
     return rows
@@ -388,12 +414,15 @@ def format_table4(rows, paper=True) -> str:
     """Plain-text Table 4 (bench rows; with the paper's numbers beside them)."""
     ref = {(c, tr): (e, u) for c, tr, e, u in PAPER_TABLE4}
     lines = [f"{'compensator':<12} {'trajectory':<12} {'RMS error':>10} {'RMS input':>10} "
-             f"{'saturated':>9}" + ("   paper: error, input" if paper else "")]
+             f"{'saturated':>9} {'no root':>7} {'slope_min':>10} {'RMS du':>8}"
+             + ("   paper: error, input" if paper else "")]
     for r in rows:
         if r["plant"] != "bench":
             continue
+        sl = r.get("slope_min")
         line = (f"{r['compensator']:<12} {r['trajectory']:<12} {r['rms_error']:>7.3f} µm "
-                f"{r['rms_input']:>8.2f} V {r['saturated']:>9d}")
+                f"{r['rms_input']:>8.2f} V {r['saturated']:>9d} {r['not_converged']:>7d} "
+                f"{('%.3g' % sl) if sl is not None else '-':>10} {r.get('rms_du', math.nan):>6.3f} V")
         if paper and (r["compensator"], r["trajectory"]) in ref:
             e, u = ref[r["compensator"], r["trajectory"]]
             line += f"   {e:.2f} µm, {u:.2f} V"
@@ -401,26 +430,47 @@ def format_table4(rows, paper=True) -> str:
     return "\n".join(lines)
 
 
+def table4_training(seed=0, fs=5000.0, T_eq19=10.0, T_multi=4.0):
+    """The pooled training records every Table 4 model is identified on: the
+    eq.-19 sweep and a multi-tone record (1, 5, 10, 20 Hz) from the default
+    bench's truth sampled at ``fs`` [Hz] (identification cost scales with the
+    samples; the models are continuous-time and used at the bench's rate)."""
+    b = Bench(seed=seed, fs=fs)
+    return [b.record(eq19_input(fs, T=T_eq19)[1], "eq19"),
+            b.record(multi_input(fs=fs, T=T_multi)[1], "multi")]
+
+
+#: Table 4's compensators and the model kinds behind them.
+TABLE4_KINDS = (("FONBW", "fonbw"), ("CBW", "cbw"), ("NBW", "nbw"), ("Zhu", "zhu"))
+
+
 def reproduce_table4(out_dir=None, *, seed=0, max_evals=3000, T=2.0, models=None,
-                     workers=None, progress=False) -> list[dict]:
+                     workers=None, progress=False, for_compensation=True, records=None,
+                     kinds=TABLE4_KINDS, preview=False) -> list[dict]:
     """Table 4 end to end on the default virtual bench.
 
-    Identifies FONBW, CBW and the Zhu model on the bench's eq. (19) record
-    (20 s at 10 kHz, :func:`fonbw.identify`, same seed for all) unless
-    ``models`` is given, then runs :func:`table4`. With ``out_dir`` also
-    writes the identified models as ``model_<name>.json``.
+    Identifies every model of ``kinds`` (FONBW, CBW, asymmetric NBW, Zhu) on
+    the same pooled records (:func:`table4_training` unless ``records``),
+    same seed and budget, unless ``models`` is given, then runs
+    :func:`table4` at the bench's step. With ``for_compensation`` (default)
+    FONBW, NBW and CBW are identified invertible at the bench's step
+    (``identify(..., for_compensation=bench.dt)``), so the causal
+    compensator has a root at every sample. With ``out_dir`` also writes the
+    identified models as ``model_<name>.json`` (with ``u_range`` and the
+    invertibility record).
     """
     bench = Bench(seed=seed)
     if models is None:
         from .identify import identify
 
-        rec = bench.record(eq19_input(bench.fs)[1], "eq19")
+        recs = table4_training(seed) if records is None else records
         models = {}
-        for name, kind in (("FONBW", "fonbw"), ("CBW", "cbw"), ("Zhu", "zhu")):
-            models[name] = identify(rec, kind, seed=seed, max_evals=max_evals, workers=workers,
-                                    progress=progress).model
+        for name, kind in kinds:
+            fc = bench.dt if (for_compensation and kind != "zhu") else None
+            models[name] = identify(recs, kind, seed=seed, max_evals=max_evals, workers=workers,
+                                    progress=progress, for_compensation=fc).model
     if out_dir is not None:
         os.makedirs(out_dir, exist_ok=True)
         for name, m in models.items():
             m.save(os.path.join(out_dir, f"model_{name.lower()}.json"))
-    return table4(bench, models, bench.dt, out_dir, T=T)
+    return table4(bench, models, bench.dt, out_dir, T=T, limits=None, preview=preview)

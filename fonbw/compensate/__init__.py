@@ -56,7 +56,14 @@ Invertibility
     unstable. The solver then does what it can (chatters, saturates, or
     reports samples without a root) and says so in the status; it does not
     hide it. With the paper's Table 1 set the 5-Hz trajectory saturates at
-    0 V from the second sample on.
+    0 V from the second sample on. :func:`compensate` and
+    :class:`Compensator` warn (RuntimeWarning) when the model is not
+    invertible at their step (:func:`fonbw.invertibility.check_invertible`).
+    Two ways out: identify under the constraint
+    (``fonbw.identify(..., for_compensation=dt)``), or, for a trajectory
+    known ahead, the non-causal stable inversion ``compensate(...,
+    preview=True)`` (:mod:`fonbw.compensate.preview`), which gives a bounded,
+    smooth voltage for any model.
 
 Explicit (one-step-delayed) variant
     ``explicit=True`` evaluates G with the previous voltage and the previous
@@ -65,7 +72,8 @@ Explicit (one-step-delayed) variant
     with a unit delay in the loop of Fig. 5 would run. It tracks less well;
     offered for comparison only. Not defined for Zhu2016 (see above).
 
-Voltage limits default to the paper's amplifier range 0–120 V. A sample
+Voltage limits default to the model's training input range (stored at
+identification as ``u_range``), else the paper's amplifier range 0–120 V. A sample
 whose H_d cannot be reached within the limits gets the limit nearer to the
 solution and is reported as saturated; a sample whose equation has no root
 the solver can find (a jump of the model's step map, e.g. the δ u sgn u̇ term
@@ -75,8 +83,10 @@ not converged.
 Units: u [V], H_d and outputs [µm], dt and t [s].
 """
 from .causal import (DEFAULT_LIMITS, DEFAULT_TOL, CompensationResult, Compensator, check_model, compensate,  # noqa: F401
-                     compensate_file, compensator)
+                     compensate_file, compensator, default_limits)
+from .preview import compensate_preview, small_signal_response  # noqa: F401
 from .kernels import NOT_CONVERGED, OK, SAT_HIGH, SAT_LOW  # noqa: F401
 
-__all__ = ["compensate", "compensator", "Compensator", "CompensationResult", "compensate_file", "DEFAULT_LIMITS",
+__all__ = ["compensate", "compensate_preview", "compensator", "Compensator", "CompensationResult",
+           "compensate_file", "default_limits", "small_signal_response", "DEFAULT_LIMITS",
            "DEFAULT_TOL", "OK", "SAT_LOW", "SAT_HIGH", "NOT_CONVERGED"]

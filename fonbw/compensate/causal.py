@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 
 import numpy as np
 
@@ -22,6 +23,7 @@ __all__ = [
     "Compensator",
     "CompensationResult",
     "compensate_file",
+    "default_limits",
     "OK",
     "SAT_LOW",
     "SAT_HIGH",
@@ -31,7 +33,8 @@ __all__ = [
 _STATUS_NAMES = {OK: "ok", SAT_LOW: "saturated at u_min", SAT_HIGH: "saturated at u_max",
                  NOT_CONVERGED: "not converged"}
 
-#: The paper's amplifier range [V] (Sec. IV-A: 0–120 V).
+#: The paper's amplifier range [V] (Sec. IV-A: 0–120 V): the voltage limits
+#: when the model does not know its training range.
 DEFAULT_LIMITS = U_RANGE
 #: Default tolerance on |H(u_k) − H_d,k| [µm] (0.1 pm).
 DEFAULT_TOL = 1e-10
@@ -72,6 +75,29 @@ def check_model(model):
     if not isinstance(model, (_hy.FONBW, _hy.CBW, _hy.Zhu2016)):
         raise ValueError(f"cannot compensate a {type(model).__name__}: expected a fonbw model "
                          "(FONBW, NBW, CBW or Zhu2016)")
+
+
+def default_limits(model):
+    """Voltage limits (u_min, u_max) [V] for ``model``: its training input range
+    (``model.meta["u_range"]``, stored at identification), else the paper's 0–120 V.
+
+    A bipolar stage identified on ±150 V thus gets ±150 V, not a clip at 0 V.
+    """
+    from ..invertibility import model_u_range
+    return model_u_range(model, DEFAULT_LIMITS)
+
+
+def _warn_invertible(model, dt, stacklevel=3):
+    """Warn (RuntimeWarning) when the causal inverse of ``model`` at ``dt`` does
+    not exist everywhere (one-step slope ≤ 0 at a state the default
+    excitation visits). The Zhu model is not checked (no analytic slope)."""
+    if not isinstance(model, (_hy.FONBW, _hy.CBW)):
+        return None
+    from ..invertibility import check_invertible
+    ok, smin, msg = check_invertible(model, dt)
+    if not ok:
+        warnings.warn(f"{type(model).__name__} {msg}", RuntimeWarning, stacklevel=stacklevel + 1)
+    return ok
 
 
 def _limits(limits):
@@ -161,6 +187,7 @@ class CompensationResult:
     tol: float
     explicit: bool = False
     form: str = "discrete"
+    preview: bool = False
 
     def __array__(self, dtype=None, copy=None):
         return self.u if dtype is None else self.u.astype(dtype)
@@ -198,6 +225,31 @@ class CompensationResult:
         """Every sample solved, none saturated."""
         return bool(np.all(self.status == OK))
 
+    @property
+    def counts(self) -> dict:
+        """Samples by status: ``{"ok", "saturated_low", "saturated_high", "not_converged"}``."""
+        return {"ok": int(np.count_nonzero(self.status == OK)),
+                "saturated_low": int(np.count_nonzero(self.status == SAT_LOW)),
+                "saturated_high": int(np.count_nonzero(self.status == SAT_HIGH)),
+                "not_converged": int(np.count_nonzero(self.status == NOT_CONVERGED))}
+
+    @property
+    def tracking_impossible(self) -> str | None:
+        """Why the model cannot track H_d with this voltage (None when it does):
+        H_d out of reach within the limits (clipped samples) or samples
+        without a root. A command line should exit non-zero on it."""
+        c = self.counts
+        parts = []
+        if c["saturated_low"] or c["saturated_high"]:
+            parts.append(f"H_d out of reach within {self.limits[0]:g}..{self.limits[1]:g} V at "
+                         f"{c['saturated_low'] + c['saturated_high']} of {len(self.u)} samples "
+                         f"({c['saturated_low']} clipped at u_min, {c['saturated_high']} at u_max)")
+        if c["not_converged"]:
+            parts.append(f"{c['not_converged']} samples without a root of H(u) = H_d"
+                         + ("" if self.preview else " (model not invertible at this step? "
+                            "see fonbw.invertibility.check_invertible; preview=True helps)"))
+        return "; ".join(parts) or None
+
     def summary(self) -> str:
         """One line: samples, saturation (with the first sample and time), failures."""
         n = len(self.u)
@@ -214,8 +266,8 @@ class CompensationResult:
         return "; ".join(parts)
 
 
-def compensate(model, Hd, dt, *, limits=DEFAULT_LIMITS, explicit=False, tol=DEFAULT_TOL,
-               max_iter=_MAX_ITER, form="discrete") -> CompensationResult:
+def compensate(model, Hd, dt, *, limits=None, explicit=False, tol=DEFAULT_TOL,
+               max_iter=_MAX_ITER, form="discrete", preview=False, check=True) -> CompensationResult:
     """Feedforward voltage for a desired displacement, from rest (eqs. 16–17, 21, 22).
 
     Parameters
@@ -226,8 +278,9 @@ def compensate(model, Hd, dt, *, limits=DEFAULT_LIMITS, explicit=False, tol=DEFA
         Desired displacement H_d [µm], sampled at dt.
     dt : float
         Step [s].
-    limits : (float, float)
-        Voltage range (u_min, u_max) [V]; default the paper's 0–120 V.
+    limits : (float, float), optional
+        Voltage range (u_min, u_max) [V]; default :func:`default_limits`
+        (the model's training range, else the paper's 0–120 V).
     explicit : bool
         One-step-delayed variant (G from the previous step) instead of the
         per-step implicit solve (module docstring).
@@ -243,6 +296,16 @@ def compensate(model, Hd, dt, *, limits=DEFAULT_LIMITS, explicit=False, tol=DEFA
         solved per step; status and ``tol`` then refer to that force
         balance, and the model output differs from H_d by the mechanics'
         discretization.
+    preview : bool
+        Non-causal stable inversion of the whole known trajectory
+        (:func:`fonbw.compensate.preview.compensate_preview`; FONBW, NBW,
+        CBW): bounded, smooth voltage for any model, invertible or not.
+        ``tol`` is then the target of max |H(u) − H_d| (default 1e-9 µm).
+        Use it when H_d is known ahead (a scan); use the causal default
+        online (one sample at a time, FMUs).
+    check : bool
+        Causal only: warn (RuntimeWarning) when the model is not invertible
+        at ``dt`` (:func:`fonbw.invertibility.check_invertible`).
 
     Returns
     -------
@@ -251,10 +314,19 @@ def compensate(model, Hd, dt, *, limits=DEFAULT_LIMITS, explicit=False, tol=DEFA
         convergence).
     """
     check_model(model)
+    if preview:
+        from .preview import compensate_preview
+        if explicit or form != "discrete":
+            raise ValueError("preview=True inverts the discrete model as a whole: "
+                             "explicit and form do not apply")
+        return compensate_preview(model, Hd, dt, limits=limits,
+                                  tol=1e-9 if tol == DEFAULT_TOL else tol)
     Hd = _hd(Hd)
     dt = _hy._dt(dt)
-    lo, hi = _limits(limits)
+    lo, hi = _limits(default_limits(model) if limits is None else limits)
     tol = _tol(tol)
+    if check and form == "discrete":
+        _warn_invertible(model, dt)
     max_iter = _max_iter(max_iter)
     ku, kh = _explicit_coeffs(model, explicit)
     form = _form(model, form)
@@ -286,8 +358,9 @@ class Compensator:
 
     Parameters
     ----------
-    model, dt, limits, explicit, tol, max_iter, form
-        As for :func:`compensate`.
+    model, dt, limits, explicit, tol, max_iter, form, check
+        As for :func:`compensate` (the invertibility warning is given once,
+        at construction).
 
     Attributes
     ----------
@@ -302,12 +375,14 @@ class Compensator:
 
     _NCTL = 9  # steps, u_prev, slope, n_sat, n_fail, status, y_model, H_d(k-1), H_d(k-2)
 
-    def __init__(self, model, dt, *, limits=DEFAULT_LIMITS, explicit=False, tol=DEFAULT_TOL,
-                 max_iter=_MAX_ITER, form="discrete"):
+    def __init__(self, model, dt, *, limits=None, explicit=False, tol=DEFAULT_TOL,
+                 max_iter=_MAX_ITER, form="discrete", check=True):
         check_model(model)
         self.model = model
         self.dt = _hy._dt(dt)
-        self.limits = _limits(limits)
+        self.limits = _limits(default_limits(model) if limits is None else limits)
+        #: Whether the model is invertible at dt (None: not checked)
+        self.invertible = _warn_invertible(model, self.dt) if check and form == "discrete" else None
         self.tol = _tol(tol)
         self.max_iter = _max_iter(max_iter)
         self.explicit = bool(explicit)
@@ -381,25 +456,28 @@ class Compensator:
         self._hd1, self._hd2 = float(s[7]), float(s[8])
 
 
-def compensator(model, dt, *, limits=DEFAULT_LIMITS, explicit=False, tol=DEFAULT_TOL,
-                max_iter=_MAX_ITER, form="discrete") -> Compensator:
+def compensator(model, dt, *, limits=None, explicit=False, tol=DEFAULT_TOL,
+                max_iter=_MAX_ITER, form="discrete", check=True) -> Compensator:
     """Per-sample compensator (for FMUs and loops); see :class:`Compensator`."""
     return Compensator(model, dt, limits=limits, explicit=explicit, tol=tol, max_iter=max_iter,
-                       form=form)
+                       form=form, check=check)
 
 
-def compensate_file(model_path, traj_path, out_path, *, limits=DEFAULT_LIMITS, explicit=False,
-                    tol=DEFAULT_TOL, form="discrete") -> CompensationResult:
+def compensate_file(model_path, traj_path, out_path, *, limits=None, explicit=False,
+                    tol=DEFAULT_TOL, form="discrete", preview=False) -> CompensationResult:
     """``fonbw compensate``: model JSON + trajectory CSV (t, Hd) -> CSV (t, u, Hd, y_model, status).
 
-    Errors in the inputs raise ValueError (``fonbw.io.DataError`` for the
-    CSV) naming the file.
+    ``limits`` default to the model's training range (:func:`default_limits`);
+    ``preview`` selects the non-causal stable inversion. The result's
+    ``tracking_impossible`` says why tracking fails, if it does. Errors in the
+    inputs raise ValueError (``fonbw.io.DataError`` for the CSV) naming the file.
     """
     from ..io import read_record, write_csv
 
     model = _hy.load_model(model_path)
     rec = read_record(traj_path, need=("Hd",))
-    res = compensate(model, rec.hd, rec.dt, limits=limits, explicit=explicit, tol=tol, form=form)
+    res = compensate(model, rec.hd, rec.dt, limits=limits, explicit=explicit, tol=tol, form=form,
+                     preview=preview)
     write_csv(out_path, {"t": rec.t, "u": res.u, "Hd": res.Hd, "y_model": res.y_model,
                          "status": res.status.astype(float)})
     return res
