@@ -133,6 +133,87 @@ def baseline(rev):
         return json.loads(out.strip().splitlines()[-1])
 
 
+def timings(models, u_all, repeat, direct_max):
+    """ns per step of each engine at every N of SIZES (one dict per N), printing progress."""
+    fast, nbw, exact = models
+    rows = []
+    direct_per_step = None
+    for N in SIZES:
+        u = u_all[:N]
+        r = {"N": N}
+        r["fast"] = best(kernel_loop(fast, u), repeat) / N * 1e9
+        r["fast_sim"] = best(lambda: fast.simulate(u, DT), repeat) / N * 1e9
+        r["nbw"] = best(kernel_loop(nbw, u), repeat) / N * 1e9
+        r["blocked"] = best(lambda: exact.simulate(u, DT), max(1, repeat if N <= 100_000 else 2)) / N * 1e9
+        if N <= direct_max:
+            reps = repeat if N <= 10_000 else 1
+            r["direct"] = best(lambda: direct_exact(exact, u), reps) / N * 1e9
+            r["direct_note"] = "measured"
+            direct_per_step = (N, r["direct"])
+        else:
+            N0, c0 = direct_per_step
+            r["direct"] = c0 * N / N0
+            r["direct_note"] = f"extrapolated from {N0:.0e} (cost/step ~ N)"
+        rows.append(r)
+        print(f"  N = {N:.0e} done", flush=True)
+    return rows
+
+
+def print_timings(rows):
+    print()
+    print("ns per step (process time, best of runs)")
+    print(f"{'N':>8} {'fast':>8} {'fast sim()':>10} {'nbw':>7} {'direct':>11} {'blocked':>9} "
+          f"{'direct/fast':>12} {'blocked/fast':>12} {'direct/blocked':>14}  direct")
+    for r in rows:
+        print(f"{r['N']:>8.0e} {r['fast']:>8.1f} {r['fast_sim']:>10.1f} {r['nbw']:>7.1f} {r['direct']:>11.0f} "
+              f"{r['blocked']:>9.0f} {r['direct'] / r['fast']:>12.0f} {r['blocked'] / r['fast']:>12.1f} "
+              f"{r['direct'] / r['blocked']:>14.0f}  {r['direct_note']}")
+
+
+def print_baseline(rev, models, u_all, repeat):
+    """This revision against `rev`, re-measured here right after the baseline run."""
+    fast, nbw, exact = models
+    # interleaved with a re-measurement of this revision, so both see the same load
+    old = baseline(rev)
+    print()
+    print(f"ns per step, this revision vs {rev} (simulate(), process time, measured back to back)")
+    print(f"{'':>14} {'this':>9} {rev:>9} {'speed-up':>9}")
+    for N in (10_000, 100_000):
+        u = u_all[:N]
+        now = {"fast": best(lambda: fast.simulate(u, DT), repeat) / N * 1e9,
+               "nbw": best(lambda: nbw.simulate(u, DT), repeat) / N * 1e9,
+               "direct": best(lambda: direct_exact(exact, u), repeat if N <= 10_000 else 1) / N * 1e9}
+        for k, v in now.items():
+            o = old[f"{k} {N}"]
+            print(f"{k + ' ' + format(N, '.0e'):>14} {v:>9.1f} {o:>9.1f} {o / v:>9.2f}")
+        print(f"{'direct/fast':>14} {now['direct'] / now['fast']:>9.0f} "
+              f"{old[f'direct {N}'] / old[f'fast {N}']:>9.0f}   (at {N:.0e})")
+
+
+def print_errors(exact, u, with_direct):
+    """Relative error of each engine against the blocked exact run (and that against the direct sum)."""
+    y_ex = exact.simulate(u, DT)
+    print()
+    print(f"relative error max|y - y_exact| / max|y_exact| over {len(u):.0e} steps (Table 1, eq. 19):")
+    if with_direct:
+        print(f"  blocked exact vs direct exact sum: {rel(y_ex, direct_exact(exact, u)):.2e}")
+    for eng in ("fast", "short", "oustaloup"):
+        y = fonbw.FONBW(**TABLE1, memory=eng).simulate(u, DT)
+        print(f"  {eng:>9}: {rel(y, y_ex):.2e}")
+
+
+def print_sweep(u):
+    print()
+    print(f"fast vs exact over lam1, lam2 in {SWEEP}, {len(u):.0e} steps:")
+    worst = (0.0, None)
+    for l1 in SWEEP:
+        for l2 in SWEEP:
+            p = {**TABLE1, "lam1": l1, "lam2": l2}
+            e = rel(fonbw.FONBW(**p).simulate(u, DT), fonbw.FONBW(**p, memory="exact").simulate(u, DT))
+            worst = max(worst, (e, (l1, l2)))
+    print(f"  worst {worst[0]:.2e} at (lam1, lam2) = {worst[1]}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeat", type=int, default=5, help="best of this many runs (default 5)")
@@ -154,74 +235,13 @@ def main(argv=None):
         m.simulate(u_all[:H.EXACT_BLOCKED_MIN + 10], DT)
         direct_exact(m, u_all[:10])
 
-    rows = []
-    direct_per_step = None
-    for N in SIZES:
-        u = u_all[:N]
-        r = {"N": N}
-        r["fast"] = best(kernel_loop(fast, u), a.repeat) / N * 1e9
-        r["fast_sim"] = best(lambda: fast.simulate(u, DT), a.repeat) / N * 1e9
-        r["nbw"] = best(kernel_loop(nbw, u), a.repeat) / N * 1e9
-        r["blocked"] = best(lambda: exact.simulate(u, DT), max(1, a.repeat if N <= 100_000 else 2)) / N * 1e9
-        if N <= a.direct_max:
-            reps = a.repeat if N <= 10_000 else 1
-            r["direct"] = best(lambda: direct_exact(exact, u), reps) / N * 1e9
-            r["direct_note"] = "measured"
-            direct_per_step = (N, r["direct"])
-        else:
-            N0, c0 = direct_per_step
-            r["direct"] = c0 * N / N0
-            r["direct_note"] = f"extrapolated from {N0:.0e} (cost/step ~ N)"
-        rows.append(r)
-        print(f"  N = {N:.0e} done", flush=True)
-
-    print()
-    print("ns per step (process time, best of runs)")
-    print(f"{'N':>8} {'fast':>8} {'fast sim()':>10} {'nbw':>7} {'direct':>11} {'blocked':>9} "
-          f"{'direct/fast':>12} {'blocked/fast':>12} {'direct/blocked':>14}  direct")
-    for r in rows:
-        print(f"{r['N']:>8.0e} {r['fast']:>8.1f} {r['fast_sim']:>10.1f} {r['nbw']:>7.1f} {r['direct']:>11.0f} "
-              f"{r['blocked']:>9.0f} {r['direct'] / r['fast']:>12.0f} {r['blocked'] / r['fast']:>12.1f} "
-              f"{r['direct'] / r['blocked']:>14.0f}  {r['direct_note']}")
-
+    print_timings(timings((fast, nbw, exact), u_all, a.repeat, a.direct_max))
     if a.baseline:
-        # interleaved with a re-measurement of this revision, so both see the same load
-        old = baseline(a.baseline)
-        print()
-        print(f"ns per step, this revision vs {a.baseline} (simulate(), process time, measured back to back)")
-        print(f"{'':>14} {'this':>9} {a.baseline:>9} {'speed-up':>9}")
-        for N in (10_000, 100_000):
-            u = u_all[:N]
-            now = {"fast": best(lambda: fast.simulate(u, DT), a.repeat) / N * 1e9,
-                   "nbw": best(lambda: nbw.simulate(u, DT), a.repeat) / N * 1e9,
-                   "direct": best(lambda: direct_exact(exact, u), a.repeat if N <= 10_000 else 1) / N * 1e9}
-            for k, v in now.items():
-                o = old[f"{k} {N}"]
-                print(f"{k + ' ' + format(N, '.0e'):>14} {v:>9.1f} {o:>9.1f} {o / v:>9.2f}")
-            print(f"{'direct/fast':>14} {now['direct'] / now['fast']:>9.0f} "
-                  f"{old[f'direct {N}'] / old[f'fast {N}']:>9.0f}   (at {N:.0e})")
-
+        print_baseline(a.baseline, (fast, nbw, exact), u_all, a.repeat)
     N = 100_000
-    u = u_all[:N]
-    y_ex = exact.simulate(u, DT)
-    print()
-    print(f"relative error max|y - y_exact| / max|y_exact| over {N:.0e} steps (Table 1, eq. 19):")
-    if a.direct_max >= N:
-        print(f"  blocked exact vs direct exact sum: {rel(y_ex, direct_exact(exact, u)):.2e}")
-    for eng in ("fast", "short", "oustaloup"):
-        y = fonbw.FONBW(**TABLE1, memory=eng).simulate(u, DT)
-        print(f"  {eng:>9}: {rel(y, y_ex):.2e}")
-
+    print_errors(exact, u_all[:N], a.direct_max >= N)
     if a.sweep:
-        print()
-        print(f"fast vs exact over lam1, lam2 in {SWEEP}, {N:.0e} steps:")
-        worst = (0.0, None)
-        for l1 in SWEEP:
-            for l2 in SWEEP:
-                p = {**TABLE1, "lam1": l1, "lam2": l2}
-                e = rel(fonbw.FONBW(**p).simulate(u, DT), fonbw.FONBW(**p, memory="exact").simulate(u, DT))
-                worst = max(worst, (e, (l1, l2)))
-        print(f"  worst {worst[0]:.2e} at (lam1, lam2) = {worst[1]}")
+        print_sweep(u_all[:N])
     print(f"load average {os.getloadavg()[0]:.1f} at the end")
 
 
