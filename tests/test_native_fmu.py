@@ -201,3 +201,10 @@ def test_win64_dll_under_wine(fmus, host, tmp_path):
     assert win.returncode == 0, win.stderr[-2000:]
     a, b = np.array(win.stdout.split(), float), np.array(lin.stdout.split(), float)
     assert len(a) == len(b) == 3000 and _rel(a, b) <= 1e-12
+    # two instances + another FMU in one process, rollback, a bad parameter: under wine too
+    g = fmus["plant"]
+    chk = subprocess.run(["wine", str(exe), "check", str(f["dll"]), f["guid"], "", str(g["dll"]), g["guid"], "",
+                          "3000"], capture_output=True, text=True, timeout=300,
+                         env={"WINEDEBUG": "-all", "PATH": "/usr/bin:/bin", "HOME": str(Path.home())})
+    assert chk.returncode == 0 and chk.stdout.strip() == "ok", chk.stderr[-2000:]
+    assert "invalid parameters: kh = nan is not finite" in chk.stderr
