@@ -79,6 +79,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from fonbw.de import jde_minimize
+from fonbw.fitcheck import parameter_check
 from fonbw.objective import Projected as _Projected, as_records as _as_records, rms_cost, simulate_record
 
 __all__ = ["KINDS", "IdentifyResult", "SearchSpace", "search_space", "identify",
@@ -410,7 +411,9 @@ def identify(records, kind: str = "fonbw", *, seed=None, max_evals: int = 5000,
         numba.set_num_threads(old_threads)
     wall = time.perf_counter() - t0
     from fonbw.invertibility import annotate_result
-    return annotate_result(_identify_result(proj, res, wall, records), recs, for_compensation)
+    # no curvature check of an interrupted search: its point is not an optimum
+    result = _identify_result(proj, res, wall, records, check=res.message != "interrupted")
+    return annotate_result(result, recs, for_compensation)
 
 
 def _check_burn_in(burn_in, recs):
@@ -447,7 +450,7 @@ def _de_settings(space, max_evals, polish, polish_maxfev, popsize, workers, max_
     return polish_maxfev, popsize
 
 
-def _identify_result(proj, res, wall, records):
+def _identify_result(proj, res, wall, records, check=True):
     """The :class:`IdentifyResult` of the best search vector ``res.x`` (a
     :class:`fonbw.de.DEResult`): linear parameters solved once more, the model
     built and eq. (18) recomputed by simulating it."""
@@ -465,19 +468,22 @@ def _identify_result(proj, res, wall, records):
     params = space.final_params(res.x, c[0], float(G[0]))
     theta = np.array([params[k] for k in proj.pnames], dtype=float)
     model = hyst.model_from_vector(kind, theta, N=Nsim, memory=memory)
-    offsets = [0.0] * len(proj.recs)
-    for j, i in enumerate(proj.offset_records):
-        offsets[i] = float(c[0][proj.q + j])
-    if any(proj.burn_in):
-        rms = _rms_after_burn_in(model, proj, offsets)
+    base = getattr(proj, "proj", proj)  # the plain projection under a constrained one
+    offsets = [0.0] * len(base.recs)
+    for j, i in enumerate(base.offset_records):
+        offsets[i] = float(c[0][base.q + j])
+    if any(base.burn_in):
+        rms = _rms_after_burn_in(model, base, offsets)
     else:
         rms = float(rms_cost(kind, theta[None, :], records, memory=memory, N=Nsim)[0])
+    intervals, warns = parameter_check(base, res.x) if check else ({}, [])
     return IdentifyResult(model=model, kind=kind, params=params, rms=rms,
                           nfev=res.nfev, wall_time=wall, history=res.history,
                           success=res.success, message=res.message,
                           search={"names": space.names, "bounds": space.bounds,
                                   "log_scale": space.log_scale, "x": res.x},
-                          burn_in=list(proj.burn_in), offsets=offsets)
+                          burn_in=list(base.burn_in), offsets=offsets, warnings=warns,
+                          intervals=intervals)
 
 
 def _rms_after_burn_in(model, proj, offsets) -> float:

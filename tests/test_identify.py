@@ -286,3 +286,66 @@ def test_small_budget_shrinks_population_and_respects_cap(truth):
     assert res.nfev <= 60
     assert len(res.history) >= 4          # several generations, not one
     assert np.isfinite(res.rms)
+
+
+# --------------------------------------------------------------------------
+# Well-posed fits: no cancelling gains, parameters at bounds named, burn-in
+# --------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def bipolar_bench_record():
+    """3 s of a ±150 V, 1 Hz drive on the bipolar bench (creep, drift, noise) at 1 kHz."""
+    from fonbw.bench import Bench
+    from fonbw.signals import bipolar_input
+
+    b = Bench.bipolar_logger(seed=2, fs=1000.0)
+    u = bipolar_input(fs=1000.0, T=3.0, f=1.0)[1]
+    return Record.from_arrays(u=u, y=b.run(u), dt=1e-3)
+
+
+@pytest.mark.parametrize("kind", ["cbw", "nbw"])
+def test_no_cancelling_gains_on_a_bipolar_record(bipolar_bench_record, kind):
+    # Unguarded, both fits ran off to a hysteretic term that is almost linear in u
+    # with a huge gain its linear part cancels (CBW k_a = -k_b = 6e10, NBW σ = 1e16).
+    res = identify(bipolar_bench_record, kind, seed=0, max_evals=600)
+    p, rec = res.params, bipolar_bench_record
+    U, span = np.max(np.abs(rec.u)), np.ptp(rec.y)
+    # each term alone stays on the scale of the output: the linear one (|k_a| U or
+    # |k_u1| U) and the hysteretic one (|k_b D| max|h|, h within ±1, or |k_h ρ| U)
+    lin = abs(p["ka"]) * U if kind == "cbw" else abs(p["ku1"]) * U
+    hyst_term = abs(p["kb"] * p["D"]) if kind == "cbw" else abs(p["kh"] * p["rho"]) * U
+    assert lin < 2 * span and hyst_term < 2 * span, p
+    if kind == "nbw":
+        assert p["sigma"] < 1e6, p
+    assert res.rms < 0.1 * span  # CBW is symmetric: a few % of range on this asymmetric bench
+
+
+def test_parameter_at_a_bound_is_named_with_intervals(truth):
+    rec = noisy_record(truth, eq19(T=4.0), seed=21)
+    res = identify(rec, "fonbw", seed=0, max_evals=400, bounds={"lam1": (0.3, 0.6)})
+    assert any(w.startswith("lam1 = 0.6 is at the upper bound of its search range [0.3, 0.6]")
+               for w in res.warnings), res.warnings
+    assert set(res.intervals) == {"rho", "sigma_rho", "n", "lam1", "lam2"}
+    lo, hi = res.intervals["n"]
+    assert lo <= res.params["n"] <= hi
+
+
+def test_intervals_hold_the_truth_on_clean_data(truth, fonbw_fit):
+    _, res = fonbw_fit
+    lo, hi = res.intervals["rho"]
+    assert lo <= TRUE["rho"] <= hi and hi / lo < 10
+    lo, hi = res.intervals["n"]
+    assert lo <= TRUE["n"] <= hi
+
+
+def test_burn_in_leaves_the_start_out_and_fits_the_offset(truth):
+    u = eq19(T=12.0)
+    y = truth.simulate(u, DT) + 0.7          # a sensor offset
+    k = 400                                   # cut mid-drive: the model's rest is wrong here
+    rec = Record.from_arrays(u=u[k:], y=y[k:], dt=DT)
+    res = identify(rec, "fonbw", seed=1, max_evals=1500, burn_in=[300])
+    assert res.burn_in == [300]
+    assert res.offsets[0] == pytest.approx(0.7, abs=0.2)  # shares a little with the polynomial of u
+    assert res.rms < 0.05
+    with pytest.raises(ValueError, match=r"burn_in\[0\] = -1: need an integer"):
+        identify(rec, "fonbw", burn_in=[-1])
