@@ -222,3 +222,31 @@ def test_every_command_has_a_description_and_defaults(command):
         assert "--columns t=COL,u=COL,y=COL" in r.stdout
     if command == "identify":
         assert "(default fonbw)" in r.stdout and "(default fast)" in r.stdout
+
+
+def test_identify_holds_each_record_out_and_names_bad_parameters(files, tmp_path):
+    d, m, u, y = files
+    t = np.arange(800) * 1e-3
+    for i, f in enumerate((1.0, 2.0)):
+        uu = 60 - 60 * np.cos(2 * np.pi * f * t)
+        write_csv(tmp_path / f"r{i}.csv", {"t": t, "u": uu, "y": m.simulate(uu, 1e-3)})
+    r = run("identify", tmp_path / "r0.csv", tmp_path / "r1.csv", "-o", tmp_path / "m.json", "--max-evals", 60,
+            "-q", "--model", "nbw")
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert lines[0].startswith(f"wrote {tmp_path / 'm.json'}: nbw model, training RMS")
+    for i in (0, 1):
+        assert any(ln.startswith(f"held out {tmp_path / f'r{i}.csv'}: RMS ") and
+                   ln.endswith("(model fitted on the other 1 record(s))") for ln in lines), lines
+    assert all(w.startswith("warning: ") for w in r.stderr.splitlines() if "is at the" in w or "poorly" in w)
+
+
+def test_validate_history_must_be_the_record_before(files, tmp_path):
+    d, m, u, y = files
+    r = run("validate", d / "model.json", d / "meas.csv", "--history", d / "meas.csv")
+    assert r.returncode == 2
+    assert r.stderr == (f"fonbw validate: error: {d / 'meas.csv'}: does not continue the history "
+                        f"{d / 'meas.csv'}: it starts at 0 s, -0.2999 s after the history ends "
+                        "(one step is 0.0001 s)\n")
+    r = run("validate", d / "model.json", d / "meas.csv", d / "meas.csv", "--history", d / "meas.csv")
+    assert r.returncode == 2 and r.stderr == "fonbw validate: error: --history takes one DATA.csv, got 2\n"

@@ -73,7 +73,7 @@ def add_record_arguments(p, offset: bool = True, y: bool | None = None) -> None:
     g.add_argument("--resample", action="store_true",
                    help="always interpolate onto the median time step (default: only when a step deviates "
                         "from it by more than 0.1 %%)")
-    g.add_argument("--no-unit-check", dest="unit_check", action="store_const", const="off", default="error",
+    g.add_argument("--no-unit-check", dest="unit_check", action="store_const", const="off",
                    help="use magnitudes that look like other units (mV, nm, ms) as they are")
     if offset:
         g.add_argument("--keep-offset", action="store_true",
@@ -91,7 +91,7 @@ def reader_options(ns) -> dict:
     g = lambda k, d=None: getattr(ns, k, d) if ns is not None else d
     return dict(columns=g("columns"), header=g("header"), delimiter=_DELIMS.get(g("delimiter")),
                 u_scale=g("u_scale", 1.0), y_scale=g("y_scale", 1.0), time_unit=g("time_unit", "s"),
-                resample=True if g("resample") else None, unit_check=g("unit_check", "error"))
+                resample=True if g("resample") else None, unit_check=g("unit_check") or "error")
 
 
 def read_records(paths, ns=None, need=("u", "y"), offsets=False):

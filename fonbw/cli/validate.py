@@ -2,19 +2,20 @@
 
 For each record (t [s], u [V], y [µm]) prints the RMS error [µm], the RMS
 error as a percentage of the record's displacement range [µm] and the largest
-absolute error [µm]; with ``--json`` one JSON object with keys rms,
+absolute error [µm]; with --json one JSON object with keys rms,
 rms_percent, max_abs, range, at_rest, burn_in_s (the worst record's, and
-``records`` with every record's for several).
+records with every record's for several).
 
-Every model starts at rest. A record that does not (its input starts away
-from 0 V, e.g. the second half of a longer run) is scored only after its
-burn-in, the samples until the model's state no longer depends on the
-unknown state at the start, and its sensor offset (unknown without a rest
-segment) is taken as the mean error after the burn-in; both are reported.
-Better, when the record that came just before it is at hand, pass it with
-``--history PREV.csv``: the model runs through PREV and then the record as
-one run, from rest, the record carries PREV's sensor offset, and only the
-record is scored.
+Every model starts at rest. A record that does not (see fonbw.start: e.g.
+the second half of a longer run, or a bipolar drive whose state at 0 V is
+unknown) is run from rest through a smooth lead-in to its first input and
+scored only after its burn-in, the samples until the model's state no longer
+depends on the unknown state at the start; its sensor offset (unknown
+without a rest segment) is taken as the mean error after the burn-in. Both
+are reported. Better, when the record that came just before it is at hand,
+pass it with --history PREV.csv: the model runs through PREV and then the
+record as one run, the offset is taken from PREV (after PREV's own burn-in),
+and only the record is scored, whole.
 """
 from __future__ import annotations
 
