@@ -52,7 +52,8 @@ def fit_actuator(task):
     Returns
     -------
     dict
-        ``{"document": model document, "seconds": wall time [s], "host": name}``
+        ``{"document": model document, "seconds": wall time [s], "cpu_seconds":
+        CPU time of the worker process [s], "host": name}``
         or ``{"error": one-line reason, ...}`` for bad records (a fault in the
         data is reported, not retried).
     """
@@ -61,7 +62,7 @@ def fit_actuator(task):
     from ..io import DataError
 
     name, paths, options = task
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         # one numba thread: the cluster's parallelism is across actuators,
         # one single-threaded worker per core; the result does not depend on it
@@ -69,7 +70,8 @@ def fit_actuator(task):
         out = {"document": fit.document}
     except (DataError, ValueError, RuntimeError) as exc:
         out = {"error": " ".join(str(exc).split()) or type(exc).__name__}
-    out.update(seconds=time.perf_counter() - t0, host=socket.gethostname())
+    out.update(seconds=time.perf_counter() - t0, cpu_seconds=time.process_time() - c0,
+               host=socket.gethostname())
     return out
 
 
@@ -114,8 +116,9 @@ def run_fleet(root, out_dir, options, *, scheduler=None, n_workers=None, say=_sa
     Returns
     -------
     dict
-        ``identified``, ``skipped``, ``failed`` (lists of actuator names) and
-        ``written`` (every path written).
+        ``identified``, ``skipped``, ``failed`` (lists of actuator names),
+        ``written`` (every path written) and ``tasks`` (``{actuator: (wall
+        [s], CPU [s])}`` of each task on its worker).
 
     Raises
     ------
@@ -134,7 +137,7 @@ def run_fleet(root, out_dir, options, *, scheduler=None, n_workers=None, say=_sa
     for name in done:
         say(f"{name}: up to date, skipped")
     report = {"identified": [], "skipped": sorted(done), "failed": sorted(results.keys() - done.keys()),
-              "written": []}
+              "written": [], "tasks": {}}
     if todo:
         say(f"identifying {len(todo)} of {len(actuators)} actuators ({len(done)} up to date)")
     t0, k = time.perf_counter(), 0
@@ -162,6 +165,7 @@ def _take(name, res, out_dir, report):
     if "error" in res:
         report["failed"].append(name)
         return res["error"]
+    report["tasks"][name] = (res["seconds"], res["cpu_seconds"])
     path = os.path.join(out_dir, f"{name}.json")
     write_model(path, res["document"])
     report["identified"].append(name)
