@@ -358,11 +358,10 @@ def identify(records, kind: str = "fonbw", *, seed=None, max_evals: int = 5000,
     reparametrize : bool
         Search σ^(1/n)ρ instead of σ (module docstring).
     burn_in : list of int, optional
-        Samples at the start of each record that do not count (weight 0): a
-        record that does not start at rest is still simulated from rest, and
-        its first samples depend on the unknown initial state. Each record
-        with a burn-in also gets its own constant sensor offset, solved with
-        the linear parameters (``IdentifyResult.offsets``).
+        Leading samples of each record left out (weight 0): those of a record
+        not at rest depend on its unknown initial state. Such a record is run
+        through a lead-in from rest and gets its own sensor offset, solved
+        with the linear parameters (``IdentifyResult.offsets``).
     for_compensation : float, optional
         Step dt [s] the model will be inverted at by the causal compensator:
         the linear parameters are then solved under the constraint that the
@@ -382,7 +381,6 @@ def identify(records, kind: str = "fonbw", *, seed=None, max_evals: int = 5000,
     """
     import numba
     from fonbw import hysteresis as hyst
-
     from fonbw.fractional import ENGINES
 
     recs = _as_records(records)
@@ -398,22 +396,28 @@ def identify(records, kind: str = "fonbw", *, seed=None, max_evals: int = 5000,
         from fonbw.invertibility import ConstrainedProjection
         proj = ConstrainedProjection(proj, for_compensation)
 
+    res, wall = _search(proj, workers, popsize=popsize, max_evals=int(max_evals), seed=seed, polish=polish,
+                        polish_maxfev=polish_maxfev, progress=progress, callback=callback)
+    from fonbw.invertibility import annotate_result
+    result = _identify_result(proj, res, wall, records, check=res.message != "interrupted")  # else no optimum
+    return annotate_result(result, recs, for_compensation)
+
+
+def _search(proj, workers, **options):
+    """(DEResult, wall time [s]) of jDE on the projected objective, with numba's
+    thread count set to `workers` for the run and restored after it."""
+    import numba
+
+    space = getattr(proj, "proj", proj).space
     old_threads = numba.get_num_threads()
     if workers is not None:
         numba.set_num_threads(int(workers))
     t0 = time.perf_counter()
     try:
-        res = jde_minimize(proj, space.bounds, log_scale=space.log_scale,
-                           popsize=popsize, max_evals=int(max_evals), seed=seed,
-                           polish=polish, polish_maxfev=polish_maxfev,
-                           progress=progress, callback=callback)
+        res = jde_minimize(proj, space.bounds, log_scale=space.log_scale, **options)
     finally:
         numba.set_num_threads(old_threads)
-    wall = time.perf_counter() - t0
-    from fonbw.invertibility import annotate_result
-    # no curvature check of an interrupted search: its point is not an optimum
-    result = _identify_result(proj, res, wall, records, check=res.message != "interrupted")
-    return annotate_result(result, recs, for_compensation)
+    return res, time.perf_counter() - t0
 
 
 def _check_burn_in(burn_in, recs):
@@ -460,7 +464,7 @@ def _identify_result(proj, res, wall, records, check=True):
     if not np.isfinite(res.fun) and (res.message or "").startswith("interrupted"):
         # Ctrl-C before any candidate was simulated (e.g. while compiling the
         # kernels): there is no best-so-far model, so the interrupt goes on.
-        raise KeyboardInterrupt("interrupted before any candidate was evaluated")
+        raise KeyboardInterrupt("interrupted before the search had a best candidate")
     if not np.isfinite(res.fun):
         raise RuntimeError(f"identify({kind!r}): every candidate diverged "
                            f"({res.nfev} evaluations); check the data and bounds")

@@ -73,10 +73,13 @@ def run(ns) -> None:
     recs = read_records(ns.data, ns)
     kw = _options(ns)
     kw["burn_in"] = _burn_ins(recs)
-    say(f"identifying a {ns.model} model on {len(recs)} record(s), {sum(r.n for r in recs)} samples, "
-        f"{kw.get('max_evals', 5000)} evaluations at most; Ctrl-C stops it (the best model so far goes to "
-        f"{partial_path(out)})")
-    res = identify(recs, **kw)
+    try:
+        say(f"identifying a {ns.model} model on {len(recs)} record(s), {sum(r.n for r in recs)} samples, "
+            f"{kw.get('max_evals', 5000)} evaluations at most; Ctrl-C stops it (the best model so far goes to "
+            f"{partial_path(out)})")
+        res = identify(recs, **kw)
+    except KeyboardInterrupt:  # before the search had a best candidate (e.g. while compiling)
+        raise KeyboardInterrupt(f"the search had no best model yet; {out} left as it was") from None
     if res.message == "interrupted":
         part = partial_path(out)
         res.model.save(part)

@@ -35,7 +35,8 @@ class CLIError(Exception):
 
 def say(msg: str) -> None:
     """A report line on stderr (what was read, done or written besides the result)."""
-    print(msg, file=sys.stderr, flush=True)
+    sys.stderr.write(msg + "\n")  # one write: a line is never cut by Ctrl-C
+    sys.stderr.flush()
 
 
 def _factor(text):
