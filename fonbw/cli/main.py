@@ -29,6 +29,7 @@ COMMANDS = {
     "compensate": ("compensate", "feedforward input u [V] for a desired trajectory (t, Hd), eq. (16)"),
     "cosim": ("cosim", "closed-loop co-simulation of the FMUs (reference, fmpy, libcosim)"),
     "diagnose": ("diagnose", "localize and attribute the sim-to-real gap"),
+    "fleet": ("fleet", "identify a model per actuator sub-folder, on dask, with a fleet summary"),
     "build-fmu": ("build_fmu", "build the FMUs (hysteresis, compensator, plant) into a folder"),
     "figures": ("figures", "the paper's Figs. 1-4 as PNG files"),
     "bench": ("bench", "write the virtual bench's experiments (eq. 19, sines, …) as CSV"),
