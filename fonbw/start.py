@@ -83,7 +83,10 @@ def noise_level(x: np.ndarray) -> float:
 
 
 def _held(x: np.ndarray, k: int, tol: float) -> bool:
-    return bool(np.max(np.abs(x[:k] - x[0])) <= tol)
+    # against the window's median, not its first sample: one noisy first
+    # sample would otherwise make a still output look as if it moved
+    w = x[:k]
+    return bool(np.max(np.abs(w - np.median(w))) <= tol)
 
 
 def _sweep_end(u: np.ndarray, tol: float) -> int:
