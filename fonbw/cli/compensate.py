@@ -8,6 +8,8 @@ converged).
 """
 from __future__ import annotations
 
+import sys
+
 from .records import CLIError, add_record_arguments, load_model, out_path, read_records
 
 
@@ -17,25 +19,43 @@ def add_arguments(p) -> None:
     p.add_argument("model", metavar="MODEL.json", help="model saved by identify")
     p.add_argument("trajectory", metavar="TRAJ.csv", help="desired trajectory: columns t [s], Hd [µm]")
     p.add_argument("-o", "--output", required=True, metavar="U.csv", help="where to write the input")
-    p.add_argument("--umin", type=float, default=U_RANGE[0], help="lower voltage limit [V] (default %(default)g)")
-    p.add_argument("--umax", type=float, default=U_RANGE[1], help="upper voltage limit [V] (default %(default)g)")
+    p.add_argument("--umin", type=float, default=None,
+                   help="lower voltage limit [V] (default: the model's training input range, else %g)" % U_RANGE[0])
+    p.add_argument("--umax", type=float, default=None,
+                   help="upper voltage limit [V] (default: the model's training input range, else %g)" % U_RANGE[1])
     p.add_argument("--explicit", action="store_true",
                    help="one-step-delayed variant instead of the per-step implicit solve")
+    p.add_argument("--preview", action="store_true",
+                   help="invert the whole known trajectory at once (non-causal, stable for any identified "
+                        "model, invertible or not); without it the causal per-step inverse that an FMU "
+                        "or a real-time loop runs")
     add_record_arguments(p, offset=False, y=True)
 
 
 def run(ns) -> None:
-    from ..compensate import compensate
+    import warnings
+
+    from ..compensate import compensate, default_limits
     from ..io import write_csv
 
-    if not ns.umin < ns.umax:
-        raise CLIError(f"--umin ({ns.umin}) must be below --umax ({ns.umax})")
     model = load_model(ns.model)
+    lo, hi = default_limits(model)
+    lo = lo if ns.umin is None else ns.umin
+    hi = hi if ns.umax is None else ns.umax
+    if not lo < hi:
+        raise CLIError(f"the lower voltage limit ({lo:g} V) must be below the upper one ({hi:g} V)")
     (rec,) = read_records([ns.trajectory], ns, need=("Hd",))
-    res = compensate(model, rec.hd, rec.dt, limits=(ns.umin, ns.umax), explicit=ns.explicit)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", RuntimeWarning)
+        res = compensate(model, rec.hd, rec.dt, limits=(lo, hi), explicit=ns.explicit, preview=ns.preview)
+    for w in caught:
+        print(f"fonbw compensate: warning: {' '.join(str(w.message).split())}", file=sys.stderr)
     write_csv(out_path(ns.output), {"t": rec.t, "u": res.u, "Hd": res.Hd, "y_model": res.y_model,
                                     "status": res.status.astype(float)})
-    st = res.status
-    low, high, nc = int((st == 1).sum()), int((st == 2).sum()), int((st == 3).sum())
-    print(f"wrote {ns.output}: {len(res.u)} samples, u in [{res.u.min():.4g}, {res.u.max():.4g}] V; "
-          f"{low} sample(s) at u_min, {high} at u_max, {nc} not converged")
+    c = res.counts
+    print(f"wrote {ns.output}: {len(res.u)} samples, u in [{res.u.min():.4g}, {res.u.max():.4g}] V "
+          f"(limits {lo:g}..{hi:g} V); {c['saturated_low']} sample(s) at u_min, {c['saturated_high']} at u_max, "
+          f"{c['not_converged']} not converged")
+    if res.tracking_impossible:
+        raise CLIError(f"{ns.trajectory}: cannot track the trajectory: {res.tracking_impossible} "
+                       f"(the input written to {ns.output} is the closest the model allows)")

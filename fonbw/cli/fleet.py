@@ -19,7 +19,6 @@ from __future__ import annotations
 
 from .records import CLIError, add_record_arguments, say
 
-HELP = "identify a model per actuator sub-folder, on dask, with a fleet summary"
 
 
 def add_arguments(p) -> None:

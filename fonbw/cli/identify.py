@@ -37,6 +37,10 @@ def add_arguments(p) -> None:
     p.add_argument("--plot", metavar="FILE.png",
                    help="also write a plot of the fit: measured and model y [µm] against t [s], the "
                         "residual, and the loop y against u [V]")
+    p.add_argument("--for-compensation", type=float, metavar="DT", dest="for_compensation",
+                   help="identify a model whose per-step inverse exists at the compensator's step DT [s]: "
+                        "its one-step slope stays positive, with margin, at every state the records visit "
+                        "(the saved model records the slope and margin)")
     p.add_argument("--no-holdout", action="store_true",
                    help="with several records, skip the fit on all but one and the check on the one left out")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
@@ -56,6 +60,10 @@ def _options(ns) -> dict:
         if ns.workers < 1:
             raise CLIError(f"--workers must be ≥ 1, got {ns.workers}")
         kw["workers"] = ns.workers
+    if ns.for_compensation is not None:
+        if not ns.for_compensation > 0:
+            raise CLIError(f"--for-compensation takes the compensator's step in s (> 0), got {ns.for_compensation}")
+        kw["for_compensation"] = ns.for_compensation
     return kw
 
 

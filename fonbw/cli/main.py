@@ -6,8 +6,9 @@ exits with code 2, with no traceback, and without writing or half-writing
 any output file (outputs are written atomically). Ctrl-C exits with code 130
 and leaves previous outputs untouched.
 
-Each command is a module of this package with ``HELP`` (one line), a module
-docstring (its description), ``add_arguments(parser)`` and ``run(ns)``.
+Each command is a module of this package with a module docstring (its
+description), ``add_arguments(parser)`` and ``run(ns)``; its one-line help
+stands in :data:`COMMANDS`.
 Only the module of the command being run is imported: some pull in
 python-control and fmpy, which take about a second.
 """

@@ -139,33 +139,11 @@ def read_records(paths, ns=None, need=("u", "y"), offsets=False):
 
 
 def start_state(rec):
-    """Where the record starts: ``fonbw.start.start_state(rec)`` (at_rest,
+    """Where the record starts: :func:`fonbw.start.start_state` (at_rest,
     burn_in [samples], reason)."""
-    try:
-        from ..start import start_state as _start
-    except ImportError:  # an installation without the detector: the plain rule below
-        return _start_fallback(rec)
+    from ..start import start_state as _start
+
     return _start(rec)
-
-
-def _start_fallback(rec):
-    """At rest when the input starts at 0 V (within 1 % of its largest magnitude);
-    otherwise the burn-in lasts until the input has come within 2 % of both its
-    extremes, after which the hysteresis state no longer depends on where it
-    started (wiping out)."""
-    from types import SimpleNamespace
-
-    import numpy as np
-
-    u = rec.u
-    U = float(np.max(np.abs(u)))
-    if U == 0 or abs(u[0]) <= 0.01 * U:
-        return SimpleNamespace(at_rest=True, burn_in=0, reason="the input starts at 0 V")
-    span = float(np.ptp(u))
-    hi = int(np.argmax(u >= u.max() - 0.02 * span))
-    lo = int(np.argmax(u <= u.min() + 0.02 * span))
-    return SimpleNamespace(at_rest=False, burn_in=max(hi, lo) + 1,
-                           reason=f"not at rest: the input starts at {float(u[0]):.4g} V")
 
 
 def load_model(path):
