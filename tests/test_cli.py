@@ -119,6 +119,42 @@ def test_compensate_round_trip_through_the_model(tmp_path):
     assert r.returncode == 2 and "--umin" in r.stderr and not (tmp_path / "u2.csv").exists()
 
 
+def test_compensate_limits_come_from_the_model_and_out_of_reach_exits_2(tmp_path):
+    # a bipolar model identified on ±150 V: a ±15 µm trajectory needs negative
+    # voltages, which the paper's 0-120 V default would clip
+    m = fonbw.FONBW(ku=[0.12], kh=2.0, rho=0.02, sigma=0.8, n=1.5, lam1=0.9, lam2=0.8)
+    m.meta = {"u_range": [-150.0, 150.0]}
+    m.save(tmp_path / "bipolar.json")
+    t = np.arange(2000) * 1e-4
+    write_csv(tmp_path / "traj.csv", {"t": t, "Hd": 15 * np.sin(2 * np.pi * 5 * t)})
+    r = run("compensate", tmp_path / "bipolar.json", tmp_path / "traj.csv", "-o", tmp_path / "u.csv")
+    assert r.returncode == 0, r.stderr
+    assert "(limits -150..150 V); 0 sample(s) at u_min, 0 at u_max, 0 not converged" in r.stdout
+    u = read_record(tmp_path / "u.csv", need=("u",)).u
+    assert u.min() < -50 and np.max(np.abs(m.simulate(u, 1e-4) - 15 * np.sin(2 * np.pi * 5 * t))) < 1e-6
+    # the same model without its range: 0-120 V, the negative half is out of reach
+    m.meta = {}
+    m.save(tmp_path / "unipolar.json")
+    r = run("compensate", tmp_path / "unipolar.json", tmp_path / "traj.csv", "-o", tmp_path / "u0.csv")
+    assert r.returncode == 2 and "cannot track the trajectory" in r.stderr and "clipped at u_min" in r.stderr
+    assert "Traceback" not in r.stderr and (tmp_path / "u0.csv").exists()
+
+
+def test_identify_for_compensation_records_a_positive_slope(files, small, tmp_path):
+    from fonbw.invertibility import check_invertible
+
+    out = tmp_path / "inv.json"
+    r = run("identify", small, "--max-evals", "60", "--for-compensation", "1e-3", "-q", "--no-holdout",
+            "-o", out)
+    assert r.returncode == 0, r.stderr
+    inv = json.loads(out.read_text())["invertibility"]
+    assert inv["dt"] == 1e-3 and inv["slope_min"] > 0
+    ok, slope_min, _ = check_invertible(fonbw.load_model(out), 1e-3)
+    assert ok and slope_min > 0
+    r = run("identify", small, "--for-compensation", "-1", "-o", tmp_path / "bad.json")
+    assert r.returncode == 2 and "--for-compensation" in r.stderr and not (tmp_path / "bad.json").exists()
+
+
 def _popen(args, env=None, umask=None):
     """The command line in a fresh process that handles SIGINT like a terminal's
     foreground job (a background shell may have set it to be ignored)."""

@@ -43,7 +43,7 @@ def run(ns) -> None:
     lo = lo if ns.umin is None else ns.umin
     hi = hi if ns.umax is None else ns.umax
     if not lo < hi:
-        raise CLIError(f"the lower voltage limit ({lo:g} V) must be below the upper one ({hi:g} V)")
+        raise CLIError(f"--umin ({lo:g} V) must be below --umax ({hi:g} V)")
     (rec,) = read_records([ns.trajectory], ns, need=("Hd",))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", RuntimeWarning)
