@@ -336,21 +336,13 @@ def table4(bench, models, dt=None, out_dir=None, *, T=2.0, limits=DEFAULT_LIMITS
         ``rms_input`` [V], ``saturated`` and ``not_converged`` (sample
         counts), ``samples``.
     """
-    bdt = float(getattr(bench, "dt"))
-    dt = bdt if dt is None else _hy._dt(dt)
-    if abs(dt - bdt) > 1e-12 * bdt:
-        raise ValueError(f"dt = {dt!r} s differs from the bench's sampling step {bdt!r} s")
-    if not models:
-        raise ValueError("models must name at least one model to compensate with")
+    dt, T = _table4_checks(bench, models, dt, T)
     specs = _table4_specs(models, limits, explicit)
     if preview:
         for m, opts in specs.values():
             if not isinstance(m, _hy.Zhu2016):
                 opts["preview"] = True
     slopes = {name: _slope_min(m, dt) for name, (m, _) in specs.items()}
-    T = float(T)
-    if not (math.isfinite(T) and T > 0):
-        raise ValueError(f"T must be a positive duration [s], got {T!r}")
     trajs = dict(TRAJECTORIES if trajectories is None else trajectories)
     t = np.arange(int(round(T / dt))) * dt
     rows, traces = [], {}
@@ -369,6 +361,20 @@ def table4(bench, models, dt=None, out_dir=None, *, T=2.0, limits=DEFAULT_LIMITS
     if out_dir is not None:
         _write_table4(out_dir, rows, traces, t, list(trajs), list(specs))
     return rows
+
+
+def _table4_checks(bench, models, dt, T):
+    """The step [s] (the bench's) and duration [s] of :func:`table4`, checked."""
+    bdt = float(getattr(bench, "dt"))
+    dt = bdt if dt is None else _hy._dt(dt)
+    if abs(dt - bdt) > 1e-12 * bdt:
+        raise ValueError(f"dt = {dt!r} s differs from the bench's sampling step {bdt!r} s")
+    if not models:
+        raise ValueError("models must name at least one model to compensate with")
+    T = float(T)
+    if not (math.isfinite(T) and T > 0):
+        raise ValueError(f"T must be a positive duration [s], got {T!r}")
+    return dt, T
 
 
 def _write_table4(out_dir, rows, traces, t, tnames, mnames):
