@@ -51,9 +51,12 @@ def run(ns) -> None:
     if ns.csv_out:
         write_csv(ns.csv_out, {"t": res.t, "r": res.r, "u": res.u, "y": res.y, "e": res.e})
     tag = " native" if ns.native and ns.master != "reference" else ""
-    print(f"{ns.scenario} {ns.mode} {ns.master}{tag} plant={ns.plant}: rms_error {res.rms_error:.4f} um, "
-          f"max_error {res.max_error:.4f} um, rms_input {res.rms_input:.2f} V, "
+    print(f"{ns.scenario} {ns.mode} {ns.master}{tag} plant={ns.plant}: rms_error {res.rms_error:.4f} µm, "
+          f"max_error {res.max_error:.4f} µm, rms_input {res.rms_input:.2f} V, "
           f"{res.steps} steps, wall {res.wall_s:.2f} s (rtf {res.rtf:.2f})")
+    for path in (ns.json_out, ns.csv_out):
+        if path:
+            print(f"wrote {path}")
     if res.error:
         # the outputs above hold the trace up to the stop
         raise CosimError(res.error)
