@@ -380,8 +380,7 @@ class Diagnosis:
             # an effect is credited only for what the better nominal leaves
             if self.current["mse"] <= (1.0 + self.floor_tol) * self.sigma2 or not pool:
                 break
-            results = (self._step0 if step == 0 and self._step0 is not None
-                       else self.try_candidates(step, pool, t0))
+            results = self.try_candidates(step, pool, t0)
             if step == 0:
                 self._first_step_candidates(results)
             best = selection.pick_best(results, self.tie_margin)
@@ -405,9 +404,6 @@ class Diagnosis:
             self.localize_residual()
         self.form = fm.check_form(self)
         self.att = self._fonbw_att()
-        self._step0 = None
-        if self.form["material"]:
-            self._rival_effect()
         self.say(f"form: gap closed {self.form['gap_closed']}, "
                  f"{'material' if self.form['material'] else 'not material'}")
         if self.form["material"]:
@@ -431,29 +427,6 @@ class Diagnosis:
                 "yref_c": [y[::self.q] for y in yref_tr], "yref_va": yref_va,
                 "global_evals": min(self.global_evals, 120), "popsize": 8,
                 "excess": self.mse_ref - self.sigma2}
-
-    def _rival_effect(self):
-        """The form is credited only if it beats FONBW plus its best single effect.
-
-        A flexible reference can bend its output where an unmodelled effect
-        does (a stroke limit flattens the top of the loop): when FONBW with one
-        passing effect explains as much as the reference, the effect is the
-        finding and the form is not. The first greedy step on FONBW is kept for
-        :meth:`attribute`, so this costs nothing extra when FONBW wins.
-        """
-        self.current = {"fit": self.base, "eff": [], "idx": [], "mse": self.mse0,
-                        "mse_tr": self.base["rms"] ** 2, "pred": self.p0_va}
-        self.candidates = []
-        results = self.try_candidates(0, list(range(len(self.lib))), time.perf_counter())
-        best = selection.pick_best(results, self.tie_margin)
-        if best is None:
-            return
-        margin = max(0.5 * self.min_gap_closed * self.excess0, 0.1 * self.sigma2)
-        self.form["rival"] = {"effect": self.lib[best["i"]].name, "rms_validate": math.sqrt(best["mse"])}
-        if best["mse"] <= self.mse_ref + margin:
-            self.say(f"form not credited: FONBW + {self.lib[best['i']].name} explains as much")
-            self.form.update(material=False, where=None)
-            self._step0 = results
 
     def confirm(self):
         """With effects accepted on the reference, the form must still beat FONBW + the same effects."""

@@ -275,6 +275,8 @@ def run_cosim(scenario="sine5", mode="ff+fb", master="reference", T=None, dt=DT,
     if sys_ is not None:
         cfg["plant_mats"] = _plant_mats(sys_, hysteresis)
     if master != "reference":
+        # absolute: the masters hand FMU locations to fmpy and libcosim as file URIs
+        fmu_dir = None if fmu_dir is None else os.path.abspath(fmu_dir)
         cfg["fmus"] = build_fmus(fmu_dir, sys_, hysteresis, native=native, models=(model, truth))
     bad = set(cfg["overrides"]) - set(w.blocks)
     if bad:
