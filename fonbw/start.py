@@ -17,7 +17,7 @@ import dataclasses
 
 import numpy as np
 
-__all__ = ["StartState", "start_state", "HOLD_SAMPLES", "MAX_BURN_IN_SHARE"]
+__all__ = ["StartState", "start_state", "burn_ins", "HOLD_SAMPLES", "MAX_BURN_IN_SHARE"]
 
 #: Samples the input must be held at its first value to call the start at rest.
 HOLD_SAMPLES = 10
@@ -139,3 +139,28 @@ def start_state(record, hold: int = HOLD_SAMPLES, max_share: float = MAX_BURN_IN
                                       f"burn-in capped at {cap} ({max_share:.0%} of the record)")
     return StartState(False, end, f"not at rest; input reaches both record extremes by sample {end}: "
                                   f"{end} samples burned in")
+
+
+def burn_ins(records, say=None) -> list:
+    """Samples to leave out at the start of each record (0 when it starts at rest).
+
+    Parameters
+    ----------
+    records : sequence of fonbw.io.Record
+    say : callable, optional
+        Called with one line per record that gets a burn-in (what and why).
+
+    Returns
+    -------
+    list of int
+        One burn-in [samples] per record.
+    """
+    out = []
+    for r in records:
+        st = start_state(r)
+        b = 0 if st.at_rest else int(st.burn_in)
+        if b and say is not None:
+            say(f"{r.path}: {st.reason}; the first {b} samples ({b * r.dt:.4g} s) are left out of the fit "
+                "and its sensor offset is fitted")
+        out.append(b)
+    return out

@@ -19,6 +19,7 @@ model found so far goes to MODEL.json.partial.json, if there is one.
 """
 from __future__ import annotations
 
+from ..start import burn_ins
 from .records import CLIError, add_record_arguments, out_path, read_records, say
 
 
@@ -80,7 +81,7 @@ def run(ns) -> None:
         out_path(ns.plot)
     recs = read_records(ns.data, ns)
     kw = _options(ns)
-    kw["burn_in"] = _burn_ins(recs)
+    kw["burn_in"] = burn_ins(recs, say)
     try:
         say(f"identifying a {ns.model} model on {len(recs)} record(s), {sum(r.n for r in recs)} samples, "
             f"{kw.get('max_evals', 5000)} evaluations at most; Ctrl-C stops it (the best model so far goes to "
@@ -106,21 +107,6 @@ def run(ns) -> None:
         fit_plot(res.model, recs, ns.plot, title=f"identify: {res.model.kind} on {len(recs)} record(s)",
                  burn_in=kw["burn_in"])
         print(f"wrote {ns.plot}")
-
-
-def _burn_ins(recs) -> list:
-    """Samples to leave out at the start of each record (0 when it starts at rest); reported."""
-    from .records import start_state
-
-    out = []
-    for r in recs:
-        st = start_state(r)
-        b = 0 if st.at_rest else int(st.burn_in)
-        if b:
-            say(f"{r.path}: {st.reason}; the first {b} samples ({b * r.dt:.4g} s) are left out of the fit "
-                "and its sensor offset is fitted")
-        out.append(b)
-    return out
 
 
 def _holdout(recs, kw) -> None:

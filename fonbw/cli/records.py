@@ -13,7 +13,7 @@ import os
 import sys
 
 __all__ = ["CLIError", "add_record_arguments", "read_records", "load_model", "out_path", "CSV_FORMAT",
-           "start_state", "say"]
+           "say"]
 
 #: What a record file looks like; shown in the help of every command that reads one.
 CSV_FORMAT = (
@@ -136,14 +136,6 @@ def read_records(paths, ns=None, need=("u", "y"), offsets=False):
         out.append(r2)
         y0s.append(y0)
     return (out, y0s) if offsets else out
-
-
-def start_state(rec):
-    """Where the record starts: :func:`fonbw.start.start_state` (at_rest,
-    burn_in [samples], reason)."""
-    from ..start import start_state as _start
-
-    return _start(rec)
 
 
 def load_model(path):

@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import json
 
-from .records import CLIError, add_record_arguments, load_model, out_path, read_records, start_state
+from ..start import start_state
+from .records import CLIError, add_record_arguments, load_model, out_path, read_records
 
 __all__ = ["add_arguments", "run"]
 

@@ -113,21 +113,6 @@ def records_digest(paths, options) -> str:
     return "sha256:" + h.hexdigest()
 
 
-def _burn_ins(recs, say) -> list:
-    """Samples to leave out at the start of each record (0 when it starts at rest); reported."""
-    from ..cli.records import start_state
-
-    out = []
-    for r in recs:
-        st = start_state(r)
-        b = 0 if st.at_rest else int(st.burn_in)
-        if b:
-            say(f"{r.path}: {st.reason}; the first {b} samples ({b * r.dt:.4g} s) are left out of the fit "
-                "and its sensor offset is fitted")
-        out.append(b)
-    return out
-
-
 def identify_paths(paths, options, *, progress: bool = False, workers: int | None = None) -> Fit:
     """Read the records at `paths` and identify a model as ``fonbw identify`` does.
 
@@ -149,11 +134,12 @@ def identify_paths(paths, options, *, progress: bool = False, workers: int | Non
         was interrupted: an interrupted model is not the one these options give).
     """
     from ..cli.records import read_records, say
+    from ..start import burn_ins
     from ..identify import identify
 
     digest = records_digest(paths, options)
     recs = read_records(paths, SimpleNamespace(**options))
-    burn_in = _burn_ins(recs, say)
+    burn_in = burn_ins(recs, say)
     kw = dict(kind=options["model"], seed=options["seed"], max_evals=options["max_evals"],
               memory=options["memory"], burn_in=burn_in, progress=progress)
     if workers is not None:

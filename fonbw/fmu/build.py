@@ -223,14 +223,24 @@ def build(out_dir, *, params=None, plant=None, dt: float = DEFAULT_DT, kinds=DEF
     """
     built = []
     for kind in kinds:
-        if kind == "plant":
-            res, name = plant_resource(plant or DEFAULT_PLANT), PLANT_RESOURCE
-        elif kind in ("hysteresis", "compensator"):
-            res, name = model_resource(params or DEFAULT_MODEL, dt), MODEL_RESOURCE
-        else:
-            raise BuildError(f"unknown FMU kind {kind!r}; choose from {', '.join(DEFAULT_KINDS)}")
+        res, name = kind_resource(kind, params, plant, None if kind == "plant" else dt)
         built.append(build_one(kind, name, res, out_dir))
     return built
+
+
+def kind_resource(kind, params=None, plant=None, dt=None):
+    """The resource of a hysteresis, compensator or plant FMU and its file name.
+
+    `params` and `plant` default to the library's default model and plant;
+    `dt` [s] is the FMU's default internal step (None: :data:`DEFAULT_DT` for
+    the model FMUs, the plant file's own step for the plant). Shared by the
+    pythonfmu and the native builders.
+    """
+    if kind == "plant":
+        return plant_resource(plant or DEFAULT_PLANT, dt), PLANT_RESOURCE
+    if kind in ("hysteresis", "compensator"):
+        return model_resource(params or DEFAULT_MODEL, DEFAULT_DT if dt is None else dt), MODEL_RESOURCE
+    raise BuildError(f"unknown FMU kind {kind!r}; choose from {', '.join(DEFAULT_KINDS)}")
 
 
 def build_pid_fmu(out_dir, controller: dict) -> Path:

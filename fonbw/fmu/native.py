@@ -452,17 +452,14 @@ def build_native(out_dir, *, params=None, plant=None, dt: float | None = None,
     list of Path
         The FMUs written, each validated by fmpy.
     """
-    from fonbw.data import DEFAULT_MODEL, DEFAULT_PLANT
-    from fonbw.fmu.build import DEFAULT_DT, model_resource, plant_resource
+    from fonbw.fmu.build import DEFAULT_DT, kind_resource
 
     built = []
     for kind in kinds:
-        if kind == "plant":
-            res = plant_resource(plant or DEFAULT_PLANT, dt)
-        elif kind in ("hysteresis", "compensator"):
-            res = model_resource(params or DEFAULT_MODEL, DEFAULT_DT if dt is None else dt)
-        elif kind == "pid":
+        if kind == "pid":
             res = pid_resource(controller, DEFAULT_DT if dt is None else dt)
+        elif kind in NATIVE_NAMES:
+            res = kind_resource(kind, params, plant, dt)[0]
         else:
             raise NativeBuildError(f"no native FMU of kind {kind!r}; choose from {', '.join(NATIVE_NAMES)}")
         built.append(build_native_one(kind, res, out_dir, platforms))
