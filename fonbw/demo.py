@@ -84,19 +84,13 @@ def _stage_compensate(bench, models, out, b):
 
 
 def _stage_fmus(model, out):
-    import subprocess
+    from .fmu.build import run_builder
 
     d = os.path.join(out, "fmus")
     os.makedirs(d, exist_ok=True)
     params = os.path.join(d, "fonbw_identified.json")
     model.save(params)
-    # a fresh process: the builder imports the slave scripts, which must not
-    # meet the FMUs this process loads in the closed-loop stage
-    r = subprocess.run([sys.executable, "-m", "fonbw.fmu.build", "--params", params, "-o", d],
-                       capture_output=True, text=True)
-    if r.returncode != 0:
-        raise RuntimeError(f"building the FMUs failed: "
-                           f"{r.stderr.strip().splitlines()[-1] if r.stderr.strip() else r.returncode}")
+    run_builder(["--params", params, "-o", d])
     return sorted(os.path.join(d, f) for f in os.listdir(d) if f.endswith(".fmu"))
 
 

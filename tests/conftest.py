@@ -118,7 +118,8 @@ def wheel_env(tmp_path_factory):
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
 
     def run(*args, cwd, timeout=1500):
-        return subprocess.run([str(py), "-m", "fonbw", *map(str, args)], cwd=cwd, capture_output=True,
+        # -P: as the `fonbw` console script, without the working folder on the import path
+        return subprocess.run([str(py), "-P", "-m", "fonbw", *map(str, args)], cwd=cwd, capture_output=True,
                               text=True, timeout=timeout, env=env)
 
     return py, purelib, run

@@ -60,3 +60,17 @@ def test_wheel_builds_native_fmus(wheel_env, tmp_path):
         names = zipfile.ZipFile(p).namelist()
         assert f"binaries/linux64/{p.stem}.so" in names and "sources/fonbw_pid.c" in names
     assert sum(line.startswith("wrote ") and "no problem" in line for line in r.stdout.splitlines()) == 3
+
+
+def test_wheel_builds_from_a_clone_of_the_repository(wheel_env, tmp_path):
+    # run from the root of a clone (as the README's main command does), the
+    # builder's own process must import the installed package, not the
+    # clone's fonbw/ source folder (which has no data/ of its own)
+    _, _, run = wheel_env
+    (tmp_path / "fonbw").mkdir()
+    (tmp_path / "fonbw" / "__init__.py").write_text('raise ImportError("the source folder, not the installed package")')
+    r = run("cosim", "--scenario", "sine5", "--mode", "ff", "--master", "fmpy", "--T", "0.01",
+            "--fmu-dir", "fresh-fmus", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "fresh-fmus" / "FonbwHysteresis.fmu").is_file()
+

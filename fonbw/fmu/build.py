@@ -42,7 +42,7 @@ from fonbw.data import DEFAULT_MODEL, DEFAULT_PLANT
 from fonbw.fmu.slaves import SLAVES_DIR
 from fonbw.fmu.slaves.fonbw_fmu_common import MODEL_RESOURCE, PID_RESOURCE, PLANT_RESOURCE
 
-__all__ = ["BuildError", "build", "build_one", "build_pid_fmu", "loop_fmus", "model_resource",
+__all__ = ["BuildError", "build", "build_one", "build_pid_fmu", "loop_fmus", "run_builder", "model_resource",
            "statespace_resource", "plant_resource", "loop_plant_resource", "add_arguments", "main"]
 
 COMMON = SLAVES_DIR / "fonbw_fmu_common.py"
@@ -253,10 +253,15 @@ def build_pid_fmu(out_dir, controller: dict) -> Path:
 # ---------------------------------------------------------------------------
 # the closed loop's FMUs, built once per library version and plant
 
-def _run_builder(args):
-    """Run the builder in a fresh process: it imports the slave scripts, which
-    must not meet the FMUs the calling process loads later."""
-    r = subprocess.run([sys.executable, "-m", "fonbw.fmu.build", *map(str, args)],
+def run_builder(args):
+    """Run the builder (this module's command line, `args`) in a fresh process.
+
+    Fresh because the builder imports the slave scripts, which must not meet
+    the FMUs the calling process loads later. ``-P`` keeps the working folder
+    off the child's import path: run from a clone of the repository, its
+    ``fonbw/`` source folder would otherwise shadow the installed package.
+    """
+    r = subprocess.run([sys.executable, "-P", "-m", "fonbw.fmu.build", *map(str, args)],
                        capture_output=True, text=True)
     if r.returncode != 0:
         raise BuildError(f"FMU build failed ({' '.join(map(str, args))}):\n{r.stdout[-2000:]}\n{r.stderr[-2000:]}")
@@ -268,7 +273,7 @@ def _cached(path: Path, args) -> Path:
     if not path.is_file():
         path.parent.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
-            _run_builder([*args, "-o", tmp])
+            run_builder([*args, "-o", tmp])
             os.replace(Path(tmp) / path.name, path)
     return path
 
