@@ -21,7 +21,9 @@ Units: u [V], y, r [µm], t, h [s].
 """
 from __future__ import annotations
 
+import os
 import shutil
+import tempfile
 from pathlib import Path
 
 import control as ct
@@ -215,15 +217,40 @@ class FmpyBlock:
 
 def unzip(fmu: Path) -> Path:
     """Extract `fmu` once next to it and reuse the folder while the FMU is
-    unchanged (numba's cache then lives there across runs)."""
+    unchanged (numba's cache then lives there across runs).
+
+    Several processes may share the folder (two runs of the loop, a demo and a
+    test): each extracts into a temporary folder beside it and renames that
+    into place, so no process ever sees, or deletes, a half-extracted copy.
+    """
     from fmpy import extract
 
     d = fmu.with_suffix(".unzipped")
-    stamp = d / ".fonbw-stamp"
     key = f"{fmu.stat().st_mtime_ns}-{fmu.stat().st_size}"
-    if not (stamp.is_file() and stamp.read_text() == key):
-        if d.exists():
-            shutil.rmtree(d)
-        extract(str(fmu), str(d))
-        stamp.write_text(key)
+    if _stamped(d, key):
+        return d
+    tmp = Path(tempfile.mkdtemp(dir=fmu.parent, prefix=d.name + "."))
+    extract(str(fmu), str(tmp))
+    (tmp / ".fonbw-stamp").write_text(key)
+    if d.exists():
+        if _stamped(d, key):  # another process finished first
+            shutil.rmtree(tmp, ignore_errors=True)
+            return d
+        stale = Path(tempfile.mkdtemp(dir=fmu.parent, prefix=d.name + ".stale."))
+        os.replace(d, stale / "old")  # a copy of an older build of the FMU
+        shutil.rmtree(stale, ignore_errors=True)
+    try:
+        os.rename(tmp, d)
+    except OSError:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if not _stamped(d, key):
+            raise
     return d
+
+
+def _stamped(d: Path, key: str) -> bool:
+    stamp = d / ".fonbw-stamp"
+    try:
+        return stamp.read_text() == key
+    except OSError:
+        return False
