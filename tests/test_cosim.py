@@ -270,3 +270,19 @@ def test_cli_writes_json_and_csv(tmp_path, capsys):
     assert len(rec.t) == 200
     assert fonbw_main(["cosim", "--scenario", "sine5", "--mode", "fb", "--T", "-1"]) == 2
     assert "fonbw cosim:" in capsys.readouterr().err
+
+
+def test_concurrent_unzips_share_one_complete_folder(loop_fmus_dir, tmp_path):
+    import concurrent.futures
+    import shutil
+
+    from fonbw.loop.blocks import unzip
+
+    fmu = tmp_path / "FonbwHysteresis.fmu"
+    shutil.copy2(loop_fmus_dir / "FonbwHysteresis.fmu", fmu)
+    with concurrent.futures.ProcessPoolExecutor(4) as ex:
+        dirs = set(ex.map(unzip, [fmu] * 8))
+    assert dirs == {fmu.with_suffix(".unzipped")}
+    d = dirs.pop()
+    assert (d / "modelDescription.xml").is_file() and (d / "binaries" / "linux64").is_dir()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["FonbwHysteresis.fmu", "FonbwHysteresis.unzipped"]
