@@ -24,6 +24,7 @@ from fonbw.cli import main as fonbw_main
 from fonbw.fmu import native
 from fonbw.loop import LoopController, controller_spec, run_cosim
 from fonbw.loop.fmus import build_native_fmus
+from fonbw.fmu.build import pid_resource
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc not installed: no linux64 binary")
 DT = 1e-4
@@ -103,7 +104,7 @@ def test_pid_refuses_bad_parameters(tmp_path):
 
 
 def test_pass_through(tmp_path):
-    fmu = native.build_native_one("pid", native.pid_resource(), tmp_path, ["linux64"], pass_through=True)
+    fmu = native.build_native_one("pid", pid_resource(), tmp_path, ["linux64"], pass_through=True)
     assert fmu.stem == native.PASS_NAMES["pid"] == "FonbwPassPIDNative"
     s, vr = _slave(fmu, {"kp": 2.0}, tmp_path)
     for k, x in enumerate((1.5, -2.0, 3.25)):

@@ -42,7 +42,7 @@ from fonbw.data import DEFAULT_MODEL, DEFAULT_PLANT
 from fonbw.fmu.slaves import SLAVES_DIR
 from fonbw.fmu.slaves.fonbw_fmu_common import MODEL_RESOURCE, PID_RESOURCE, PLANT_RESOURCE
 
-__all__ = ["BuildError", "build", "build_one", "build_pid_fmu", "loop_fmus", "run_builder", "model_resource",
+__all__ = ["BuildError", "build", "build_one", "build_pid_fmu", "loop_fmus", "run_builder", "pid_resource", "model_resource",
            "statespace_resource", "plant_resource", "loop_plant_resource", "add_arguments", "main"]
 
 COMMON = SLAVES_DIR / "fonbw_fmu_common.py"
@@ -103,14 +103,18 @@ def sources_key() -> str:
 
 def model_resource(params, dt: float = DEFAULT_DT) -> dict:
     """Resource of the hysteresis and compensator FMUs: the model as the library
-    writes it (round-tripped through :func:`fonbw.load_model`, so it is known to
-    load), the default internal step [s] and the compensator's voltage range [V]."""
+    writes it (`params` a model, or a JSON file round-tripped through
+    :func:`fonbw.load_model`, so it is known to load), the default internal
+    step [s] and the compensator's voltage range [V]."""
     from fonbw.compensate import DEFAULT_LIMITS
 
-    try:
-        model = fonbw.load_model(str(params))
-    except Exception as e:
-        raise BuildError(f"{params}: cannot load parameter set: {e}") from e
+    if hasattr(params, "to_dict"):
+        model = params
+    else:
+        try:
+            model = fonbw.load_model(str(params))
+        except Exception as e:
+            raise BuildError(f"{params}: cannot load parameter set: {e}") from e
     if not isinstance(model, fonbw.FONBW):  # NBW is a FONBW with lam1 = lam2 = 1
         raise BuildError(f"{params}: the FMUs wrap the FONBW model, got kind {model.kind!r}")
     return {"model": model.as_fonbw().to_dict(), "dt": float(dt),
@@ -241,6 +245,17 @@ def kind_resource(kind, params=None, plant=None, dt=None):
     if kind in ("hysteresis", "compensator"):
         return model_resource(params or DEFAULT_MODEL, DEFAULT_DT if dt is None else dt), MODEL_RESOURCE
     raise BuildError(f"unknown FMU kind {kind!r}; choose from {', '.join(DEFAULT_KINDS)}")
+
+
+def pid_resource(controller=None, dt: float = DEFAULT_DT) -> dict:
+    """Start values of the PID FMUs (pythonfmu and native): :func:`fonbw.loop.controller_spec`
+    of `controller` (its keyword arguments; default kp = 1e-3 V/µm, ki = 100 V/(µm s)
+    at step `dt` [s]), without its design notes."""
+    from fonbw.loop.controller import CONTROLLER_KEYS, controller_spec
+
+    c = dict(controller or {"kp": 1e-3, "ki": 100.0, "dt": dt})
+    spec = controller_spec(**{k: c[k] for k in CONTROLLER_KEYS if k in c})
+    return {k: spec[k] for k in CONTROLLER_KEYS}
 
 
 def build_pid_fmu(out_dir, controller: dict) -> Path:

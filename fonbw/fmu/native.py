@@ -452,7 +452,7 @@ def build_native(out_dir, *, params=None, plant=None, dt: float | None = None,
     list of Path
         The FMUs written, each validated by fmpy.
     """
-    from fonbw.fmu.build import DEFAULT_DT, kind_resource
+    from fonbw.fmu.build import DEFAULT_DT, kind_resource, pid_resource
 
     built = []
     for kind in kinds:
@@ -464,17 +464,6 @@ def build_native(out_dir, *, params=None, plant=None, dt: float | None = None,
             raise NativeBuildError(f"no native FMU of kind {kind!r}; choose from {', '.join(NATIVE_NAMES)}")
         built.append(build_native_one(kind, res, out_dir, platforms))
     return built
-
-
-def pid_resource(controller=None, dt: float = 1e-4) -> dict:
-    """The PID's start values: :func:`fonbw.loop.controller_spec` of
-    `controller` (keyword arguments; default kp = 1e-3 V/um, ki = 100 V/(um s)
-    at step `dt` [s]), without its design notes."""
-    from fonbw.loop.controller import CONTROLLER_KEYS, controller_spec
-
-    c = dict(controller or {"kp": 1e-3, "ki": 100.0, "dt": dt})
-    spec = controller_spec(**{k: c[k] for k in CONTROLLER_KEYS if k in c})
-    return {k: spec[k] for k in CONTROLLER_KEYS}
 
 
 def run(ns) -> int:

@@ -12,7 +12,7 @@ import os
 import tempfile
 from pathlib import Path
 
-from .controller import CONTROLLER_KEYS, controller_spec, plant_system
+from .controller import CONTROLLER_KEYS, plant_system
 
 __all__ = ["build_fmus", "build_native_fmus", "fmu_settings"]
 
@@ -36,32 +36,28 @@ def build_fmus(out_dir=None, plant=None, hysteresis=True, native=False, models=N
     """
     if native:
         return build_native_fmus(out_dir, plant, hysteresis, models)
-    from ..fmu.build import loop_fmus
+    from ..fmu.build import loop_fmus, pid_resource
 
-    spec = controller_spec(1e-3, 100.0)
-    return loop_fmus({k: spec[k] for k in CONTROLLER_KEYS}, out_dir,
-                     plant_system(plant) if plant is not None else None, hysteresis)
+    return loop_fmus(pid_resource(), out_dir, plant_system(plant) if plant is not None else None, hysteresis)
 
 
 def _model_resource(model):
     """Resource of a native hysteresis or compensator FMU for `model` (a
     FONBW, or None): the default model's, unless `model` has another number
     of coefficients ku (fixed at build time), then its own."""
-    from ..compensate import DEFAULT_LIMITS
     from ..data import DEFAULT_MODEL
     from ..fmu.build import DEFAULT_DT, model_resource
 
     res = model_resource(DEFAULT_MODEL, DEFAULT_DT)
     if model is not None and len(model.params["ku"]) != len(res["model"]["params"]["ku"]):
-        res = {"model": model.as_fonbw().to_dict(), "dt": DEFAULT_DT,
-               "limits": [float(x) for x in DEFAULT_LIMITS]}
+        res = model_resource(model, DEFAULT_DT)
     return res
 
 
 def native_resources(plant=None, hysteresis=True, models=None) -> dict:
     """{role: (native kind, resource)} of the loop's native FMUs."""
     from ..fmu.build import loop_plant_resource
-    from ..fmu.native import pid_resource
+    from ..fmu.build import pid_resource
 
     comp, truth = models if models is not None else (None, None)
     out = {"hyst": ("hysteresis", _model_resource(truth)), "comp": ("compensator", _model_resource(comp)),
