@@ -16,10 +16,16 @@ Usage::
 
     python benchmarks/blind_gap.py [-n 40] [--seed0 1000] [--out /tmp/blind_gap.jsonl]
                                    [--only single below] [--family preisach pi] [--oracle]
+                                   [--scheduler ADDRESS | --workers N]
     python benchmarks/blind_gap.py --summary /tmp/blind_gap.jsonl
 
-Each scenario is appended to the JSON-lines file as it finishes, so a long run
-can be stopped and summarized at any time (:mod:`gap_summary`). A single
+The scenarios are independent tasks on dask.distributed (:func:`fonbw.fleet.map_tasks`):
+an embedded LocalCluster, one worker process per core, by default; ``--scheduler
+ADDRESS`` sends them to a running cluster (whose workers need this folder on
+their path, e.g. ``dask worker … --preload`` or a shared checkout). Each scenario
+is appended to the JSON-lines file as it finishes, so a long run can be stopped,
+resumed (seeds already in the file are skipped) and summarized at any time
+(:mod:`gap_summary`). A single
 effect is *material* when its magnitude is at least 2 noise standard
 deviations. The harness knows the truth and measures two oracles the
 diagnosis never sees: for single effects how much of the effect a FONBW
@@ -221,31 +227,51 @@ def _read_jsonl(path):
         return [json.loads(line) for line in fh if line.strip()]
 
 
-def run(n, seed0, out, budget, only=None, options=None, cache_path=None):
-    """Run scenarios seed0 … seed0 + n − 1 (those not yet in `out`), appending one line each."""
+def _scenario_task(item):
+    """One Dask task: ``(seed, budget, options)`` -> the scenario's row."""
+    seed, budget, options = item
+    return run_scenario(seed, budget, options)
+
+
+def _store(row, out, cache, cache_path):
+    """Append a finished scenario's row (and its new oracle values) and print a line."""
+    new = row.pop("oracle_cache")
+    cache.update(new)
+    if cache_path and new:
+        with open(cache_path, "a") as fh:
+            for k, v in new.items():
+                fh.write(json.dumps({"key": k, "value": v}) + "\n")
+    with open(out, "a") as fh:
+        fh.write(json.dumps(row, default=float) + "\n")
+    inj = [(k, round(v["magnitude"], 2)) for k, v in row["injected"].items()]
+    print(f"seed {row['seed']} {row['family']:8s} {row['kind']:8s} injected {inj}"
+          f"{'' if row['starts_at_rest'] else ' mid-drive'} -> named {row.get('named')}"
+          f" form {(row.get('form') or {}).get('material')} gap_closed {row.get('gap_closed', float('nan')):.3f}"
+          f" unexplained {row.get('unexplained')} ({row['total_s']:.0f} s)", flush=True)
+
+
+def run(n, seed0, out, budget, only=None, options=None, cache_path=None, scheduler=None, workers=None):
+    """Run scenarios seed0 … seed0 + n − 1 (those not yet in `out`) as tasks on
+    dask.distributed, appending one line each as it completes.
+
+    Every scenario draws from its own seed and reads the oracle cache as it
+    was at submission, so a row does not depend on the number of workers nor
+    on the order in which they finish (only the order of the lines does; the
+    summary does not read it). `scheduler` and `workers` are those of
+    :func:`fonbw.fleet.map_tasks`: an embedded LocalCluster with `workers`
+    processes (default one per core) or a running scheduler's address.
+    """
+    from fonbw.fleet import map_tasks
     from gap_truth import scenario_kind
 
     opt = {**DEFAULTS, **(options or {})}
     done = {r["seed"] for r in _read_jsonl(out)}
     cache = {r["key"]: r["value"] for r in _read_jsonl(cache_path)}
-    for i in range(n):
-        seed = seed0 + i
-        if seed in done or (only and scenario_kind(seed) not in only):
-            continue
-        row = run_scenario(seed, budget, {**opt, "cache": cache})
-        new = row.pop("oracle_cache")
-        cache.update(new)
-        if cache_path and new:
-            with open(cache_path, "a") as fh:
-                for k, v in new.items():
-                    fh.write(json.dumps({"key": k, "value": v}) + "\n")
-        with open(out, "a") as fh:
-            fh.write(json.dumps(row, default=float) + "\n")
-        inj = [(k, round(v["magnitude"], 2)) for k, v in row["injected"].items()]
-        print(f"seed {seed} {row['family']:8s} {row['kind']:8s} injected {inj}"
-              f"{'' if row['starts_at_rest'] else ' mid-drive'} -> named {row.get('named')}"
-              f" form {(row.get('form') or {}).get('material')} gap_closed {row.get('gap_closed', float('nan')):.3f}"
-              f" unexplained {row.get('unexplained')} ({row['total_s']:.0f} s)", flush=True)
+    seeds = [seed0 + i for i in range(n)
+             if seed0 + i not in done and not (only and scenario_kind(seed0 + i) not in only)]
+    items = [(seed, budget, {**opt, "cache": dict(cache)}) for seed in seeds]
+    for _, row in map_tasks(_scenario_task, items, scheduler, workers, name="blind-gap"):
+        _store(row, out, cache, cache_path)
 
 
 def _timing(seed, budget):
@@ -282,6 +308,10 @@ def main(argv=None):
                     help="measure the form oracle (one FONBW identification per scenario)")
     ap.add_argument("--oracle-cache", metavar="JSONL", help="oracle values by scenario (default: OUT.oracle.jsonl)")
     ap.add_argument("--summary", metavar="JSONL", help="only summarize an existing run")
+    ap.add_argument("--scheduler", metavar="ADDRESS",
+                    help="dask scheduler address or scheduler file (default: an embedded LocalCluster)")
+    ap.add_argument("--workers", type=int, metavar="N",
+                    help="worker processes of the embedded cluster (default: one per core)")
     ap.add_argument("--timing", action="store_true",
                     help="time one diagnosis on ~30 s of 5 kHz data (scenario durations x1.5)")
     ns = ap.parse_args(argv)
@@ -292,7 +322,8 @@ def main(argv=None):
         print(summary(ns.summary))
         return 0
     opt = {"families": ns.family, "scale": ns.scale, "mid_drive": ns.mid_drive, "oracle": ns.oracle}
-    run(ns.n, ns.seed0, ns.out, ns.budget, ns.only, opt, ns.oracle_cache or ns.out + ".oracle.jsonl")
+    run(ns.n, ns.seed0, ns.out, ns.budget, ns.only, opt, ns.oracle_cache or ns.out + ".oracle.jsonl",
+        scheduler=ns.scheduler, workers=ns.workers)
     print(summary(ns.out))
     return 0
 
