@@ -2,8 +2,10 @@
 against the direct GL sum and a triangular Toeplitz solve, the SIMD sums
 against numpy, the Newton solver against brentq, the series power against
 pow, the fast engine against the exact one over the range of orders, and the
-per-step state (predictor, counters) against the batch run bit for bit."""
+per-step state (predictor, counters) against the batch run bit for bit; the
+compiled-code cache key against edits of compiled and other sources."""
 import math
+from pathlib import Path
 
 import numba as nb
 import numpy as np
@@ -204,3 +206,24 @@ def test_lowest_mode_carries_the_truncated_tail():
     # without the lumped nodes below s_lo, E1 at λ = 0.3 plateaus near 3e-8 for any M
     assert fr.tail_error(0.3, fr.FAST_K, 64, horizon=100_000) < 1e-11
     assert fr.tail_error(0.3, fr.FAST_K, fr.FAST_M, horizon=1_000_000) < 1e-9
+
+
+def test_numba_cache_key_follows_the_compiled_sources_only(tmp_path):
+    import shutil
+
+    import fonbw
+
+    pkg = tmp_path / "fonbw"
+    shutil.copytree(Path(fonbw.__file__).parent, pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    key = fonbw._kernel_sources_digest(str(pkg), "0.68.1")
+    assert key == fonbw._kernel_sources_digest(str(pkg), "0.68.1") and len(key) == 16
+    assert fonbw._kernel_sources_digest(str(pkg), "0.69.0") != key     # a numba upgrade
+    for rel in ("cli/main.py", "loop/run.py", "gap/attribute.py"):   # no compiled code there
+        (pkg / rel).write_text((pkg / rel).read_text() + "\n# edited\n")
+    assert fonbw._kernel_sources_digest(str(pkg), "0.68.1") == key
+    for rel in ("fractional/weights.py", "hysteresis/models.py", "plant.py", "gap/reference.py"):
+        src = (pkg / rel).read_text()
+        (pkg / rel).write_text(src + "\n# edited\n")
+        assert fonbw._kernel_sources_digest(str(pkg), "0.68.1") != key, rel
+        (pkg / rel).write_text(src)
+    assert fonbw._kernel_sources_digest(str(pkg), "0.68.1") == key
