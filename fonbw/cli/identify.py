@@ -3,7 +3,9 @@
 Fits the chosen model to one or more records (t [s], u [V], y [µm]) with a
 self-adaptive differential evolution (jDE) on the paper's objective, eq. (18);
 the parameters that enter linearly are solved by least squares at every
-evaluation. Writes the model as JSON (its kind, parameters and units).
+evaluation. Writes the model as JSON (its kind, parameters and units, and a ``fit``
+object: the records' names and digest, the options and the training RMS),
+through the same code as ``fonbw fleet``, so both give the same file.
 
 A record that does not start at rest (its input starts away from 0 V) is
 simulated from rest all the same, but its first samples, until the model's
@@ -19,8 +21,7 @@ model found so far goes to MODEL.json.partial.json, if there is one.
 """
 from __future__ import annotations
 
-from ..start import burn_ins
-from .records import CLIError, add_record_arguments, out_path, read_records, say
+from .records import CLIError, add_record_arguments, out_path, say
 
 
 def add_arguments(p) -> None:
@@ -49,23 +50,13 @@ def add_arguments(p) -> None:
 
 
 def _options(ns) -> dict:
-    """identify()'s keyword arguments from the parsed options (checked)."""
-    if ns.seed is not None and ns.seed < 0:
-        raise CLIError(f"--seed must be ≥ 0, got {ns.seed}")
-    kw = dict(kind=ns.model, seed=ns.seed, progress=not ns.quiet, memory=ns.memory)
-    if ns.max_evals is not None:
-        if ns.max_evals < 10:
-            raise CLIError(f"--max-evals must be at least 10, got {ns.max_evals}")
-        kw["max_evals"] = ns.max_evals
-    if ns.workers is not None:
-        if ns.workers < 1:
-            raise CLIError(f"--workers must be ≥ 1, got {ns.workers}")
-        kw["workers"] = ns.workers
-    if ns.for_compensation is not None:
-        if not ns.for_compensation > 0:
-            raise CLIError(f"--for-compensation takes the compensator's step in s (> 0), got {ns.for_compensation}")
-        kw["for_compensation"] = ns.for_compensation
-    return kw
+    """The options that decide the model (:func:`fonbw.fleet.fit.fit_options`), checked,
+    and the thread count."""
+    from ..fleet.fit import fit_options
+
+    if ns.workers is not None and ns.workers < 1:
+        raise CLIError(f"--workers must be ≥ 1, got {ns.workers}")
+    return fit_options(ns)
 
 
 def partial_path(output) -> str:
@@ -74,38 +65,46 @@ def partial_path(output) -> str:
 
 
 def run(ns) -> None:
-    from ..identify import identify
+    from ..fleet.fit import identify_kwargs, identify_paths, write_model
 
     out = out_path(ns.output)
     if ns.plot:
         out_path(ns.plot)
-    recs = read_records(ns.data, ns)
-    kw = _options(ns)
-    kw["burn_in"] = burn_ins(recs, say)
-    try:
+    options = _options(ns)
+    started = []
+
+    def announce(recs, kw):
+        started.append(True)
         say(f"identifying a {ns.model} model on {len(recs)} record(s), {sum(r.n for r in recs)} samples, "
-            f"{kw.get('max_evals', 5000)} evaluations at most; Ctrl-C stops it (the best model so far goes to "
+            f"{kw['max_evals']} evaluations at most; Ctrl-C stops it (the best model so far goes to "
             f"{partial_path(out)})")
-        res = identify(recs, **kw)
-    except KeyboardInterrupt:  # before the search had a best candidate (e.g. while compiling)
+
+    try:
+        # the one identification path, shared with `fonbw fleet`
+        fit = identify_paths(ns.data, options, progress=not ns.quiet, workers=ns.workers, announce=announce)
+    except KeyboardInterrupt:
+        if not started:  # while reading: nothing to say beyond the interrupt
+            raise
+        # the search had no best candidate yet (e.g. while compiling the kernels)
         raise KeyboardInterrupt(f"the search had no best model yet; {out} left as it was") from None
+    res, recs = fit.result, fit.records
     if res.message == "interrupted":
         part = partial_path(out)
         res.model.save(part)
         raise KeyboardInterrupt(f"{out} left as it was; the best model so far (training RMS {res.rms:.4g} µm "
                                 f"after {res.nfev} evaluations) is in {part}")
-    res.model.save(out)
+    write_model(out, fit.document)
     print(f"wrote {out}: {res.model.kind} model, training RMS {res.rms:.4g} µm"
           + (f" ({res.message})" if res.message else ""))
     for w in getattr(res, "warnings", []):
         say(f"warning: {w}")
     if len(recs) > 1 and not ns.no_holdout:
-        _holdout(recs, kw)
+        _holdout(recs, identify_kwargs(options, fit.burn_in, workers=ns.workers))
     if ns.plot:
         from ..fitplot import fit_plot
 
         fit_plot(res.model, recs, ns.plot, title=f"identify: {res.model.kind} on {len(recs)} record(s)",
-                 burn_in=kw["burn_in"])
+                 burn_in=fit.burn_in)
         print(f"wrote {ns.plot}")
 
 

@@ -1,6 +1,8 @@
 """One identification from record files: the path ``fonbw identify`` and ``fonbw fleet`` share.
 
-:func:`identify_paths` reads the records (through the commands' one reading
+Both commands call :func:`identify_paths`, so a model from ``fonbw fleet``
+is byte for byte the file ``fonbw identify`` writes with the same options and
+seed. It reads the records (through the commands' one reading
 step, :func:`fonbw.cli.records.read_records`), leaves out the start of a
 record that does not begin at rest, runs :func:`fonbw.identify.identify` and
 builds the model's JSON document: the model (kind, parameters, units) plus a
@@ -17,7 +19,8 @@ import os
 from dataclasses import dataclass, field
 from types import SimpleNamespace
 
-__all__ = ["FIT_OPTIONS", "Fit", "fit_options", "records_digest", "identify_paths", "model_document",
+__all__ = ["FIT_OPTIONS", "Fit", "fit_options", "records_digest", "identify_kwargs", "identify_paths",
+           "model_document",
            "model_bytes", "write_model", "read_fit"]
 
 #: Options that decide the model (seed, budget, model kind, memory engine and
@@ -26,7 +29,7 @@ __all__ = ["FIT_OPTIONS", "Fit", "fit_options", "records_digest", "identify_path
 FIT_OPTIONS = {
     "model": "fonbw", "seed": 0, "max_evals": 5000, "memory": "fast",
     "columns": None, "header": None, "delimiter": None, "time_unit": "s", "u_scale": 1.0, "y_scale": 1.0,
-    "resample": False, "unit_check": "error", "keep_offset": False,
+    "resample": False, "unit_check": "error", "keep_offset": False, "for_compensation": None,
 }
 
 
@@ -79,6 +82,11 @@ def fit_options(ns) -> dict:
     if int(opts["max_evals"]) != opts["max_evals"] or opts["max_evals"] < 10:
         raise CLIError(f"--max-evals must be at least 10, got {opts['max_evals']}")
     opts["seed"], opts["max_evals"] = int(opts["seed"]), int(opts["max_evals"])
+    dtc = opts["for_compensation"]
+    if dtc is not None:
+        if not float(dtc) > 0:
+            raise CLIError(f"--for-compensation takes the compensator's step in s (> 0), got {dtc}")
+        opts["for_compensation"] = float(dtc)
     opts["u_scale"], opts["y_scale"] = float(opts["u_scale"]), float(opts["y_scale"])
     opts["resample"], opts["keep_offset"] = bool(opts["resample"]), bool(opts["keep_offset"])
     return opts
@@ -113,8 +121,36 @@ def records_digest(paths, options) -> str:
     return "sha256:" + h.hexdigest()
 
 
-def identify_paths(paths, options, *, progress: bool = False, workers: int | None = None) -> Fit:
-    """Read the records at `paths` and identify a model as ``fonbw identify`` does.
+def identify_kwargs(options, burn_in, *, progress: bool = False, workers: int | None = None) -> dict:
+    """Keyword arguments of :func:`fonbw.identify.identify` for :func:`fit_options` output.
+
+    Parameters
+    ----------
+    options : dict
+        :func:`fit_options` output.
+    burn_in : list of int
+        Samples left out at the start of each record [samples].
+    progress : bool
+        Show identify's progress bar.
+    workers : int, optional
+        Threads of the population simulator (left to numba when None).
+
+    Returns
+    -------
+    dict
+    """
+    kw = dict(kind=options["model"], seed=options["seed"], max_evals=options["max_evals"],
+              memory=options["memory"], burn_in=list(burn_in), progress=progress)
+    if workers is not None:
+        kw["workers"] = workers
+    if options.get("for_compensation") is not None:
+        kw["for_compensation"] = options["for_compensation"]
+    return kw
+
+
+def identify_paths(paths, options, *, progress: bool = False, workers: int | None = None,
+                   announce=None) -> Fit:
+    """Read the records at `paths` and identify a model: what ``fonbw identify`` does.
 
     Parameters
     ----------
@@ -126,6 +162,10 @@ def identify_paths(paths, options, *, progress: bool = False, workers: int | Non
         Show identify's progress bar.
     workers : int, optional
         Threads of the population simulator; the result does not depend on it.
+    announce : callable, optional
+        ``announce(records, kwargs)`` once the records are read, just before the
+        search starts (the command's report line; a Ctrl-C after it falls in
+        the search).
 
     Returns
     -------
@@ -137,13 +177,13 @@ def identify_paths(paths, options, *, progress: bool = False, workers: int | Non
     from ..start import burn_ins
     from ..identify import identify
 
-    digest = records_digest(paths, options)
+    # Read first: a missing or malformed file is reported by the reader, not by the digest.
     recs = read_records(paths, SimpleNamespace(**options))
+    digest = records_digest(paths, options)
     burn_in = burn_ins(recs, say)
-    kw = dict(kind=options["model"], seed=options["seed"], max_evals=options["max_evals"],
-              memory=options["memory"], burn_in=burn_in, progress=progress)
-    if workers is not None:
-        kw["workers"] = workers
+    kw = identify_kwargs(options, burn_in, progress=progress, workers=workers)
+    if announce is not None:
+        announce(recs, kw)
     res = identify(recs, **kw)
     doc = {} if res.message == "interrupted" else model_document(res, paths, options, digest)
     return Fit(result=res, records=recs, burn_in=burn_in, document=doc)
