@@ -1,0 +1,261 @@
+/* The per-model parts of the fonbw native FMUs (see fonbw_instance.h): the
+ * variables of each kind, its build-time start values, building the model
+ * from the parameters at initialization (with the parameter checks), one
+ * internal step, and the model's own part of the FMU state. Numerics in
+ * fonbw_numerics.c, fonbw_compensator.c, fonbw_plant.c, fonbw_pid.c. */
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "fonbw_instance.h"
+
+static const char *ENGINE_NAMES[] = {"fast", "exact", "short"};
+static const char *INTEGRATOR_NAMES[] = {"forward", "backward", "tustin"};
+static const char *ANTI_WINDUP_NAMES[] = {"back-calculation", "clamping", "none"};
+
+int inst_is_input(int vr) {
+    return vr == VR_IN || (MODEL_KIND == KIND_PID && (vr == VR_Y || vr == VR_UFF));
+}
+
+int inst_is_param(int vr) {
+    if (vr == VR_DT) return 1;
+#if MODEL_KIND == KIND_PID
+    if (vr == VR_UMIN || vr == VR_UMAX || (vr >= VR_KP && vr <= VR_TT) || vr == VR_INTEGRATOR ||
+        vr == VR_ANTI_WINDUP) return 1;
+#elif MODEL_KIND != KIND_PLANT
+    if ((vr >= VR_KH && vr <= VR_LAM2) || (vr >= VR_KU && vr < VR_KU + NKU) ||
+        vr == VR_K || vr == VR_M || vr == VR_L || vr == VR_MEMORY) return 1;
+#if MODEL_KIND == KIND_COMP
+    if (vr == VR_UMIN || vr == VR_UMAX) return 1;
+#endif
+#endif
+    return 0;
+}
+
+int inst_is_real(int vr) {
+    return inst_is_input(vr) || vr == VR_OUT || (inst_is_param(vr) && vr < VR_K);
+}
+
+int inst_is_int(int vr) {
+#if MODEL_KIND == KIND_COMP
+    if (vr == VR_STATUS) return 1;
+#endif
+    return MODEL_KIND != KIND_PLANT && MODEL_KIND != KIND_PID && (vr == VR_K || vr == VR_M || vr == VR_L);
+}
+
+/* the names a String parameter takes (NULL: not a String variable), and where its index is kept */
+const char **inst_string_names(Instance *c, int vr, int *count, int **slot) {
+    if (MODEL_KIND == KIND_PID && (vr == VR_INTEGRATOR || vr == VR_ANTI_WINDUP)) {
+        *count = 3;
+        *slot = &c->i[vr];
+        return vr == VR_INTEGRATOR ? INTEGRATOR_NAMES : ANTI_WINDUP_NAMES;
+    }
+    if (MODEL_KIND != KIND_PLANT && MODEL_KIND != KIND_PID && vr == VR_MEMORY) {
+        *count = 3;
+        *slot = &c->engine;
+        return ENGINE_NAMES;
+    }
+    return NULL;
+}
+
+void inst_set_defaults(Instance *c) {
+    memset(c->r, 0, sizeof c->r);
+    memset(c->i, 0, sizeof c->i);
+    c->r[VR_DT] = DEFAULT_DT;
+#if MODEL_KIND == KIND_PID
+    c->r[VR_KP] = DEFAULT_KP; c->r[VR_KI] = DEFAULT_KI; c->r[VR_KD] = DEFAULT_KD;
+    c->r[VR_TF] = DEFAULT_TF; c->r[VR_TT] = DEFAULT_TT;
+    c->r[VR_UMIN] = DEFAULT_UMIN; c->r[VR_UMAX] = DEFAULT_UMAX;
+    c->i[VR_INTEGRATOR] = DEFAULT_INTEGRATOR; c->i[VR_ANTI_WINDUP] = DEFAULT_ANTI_WINDUP;
+#elif MODEL_KIND != KIND_PLANT
+    {
+        static const double ku[NKU] = DEFAULT_KU;
+        int k;
+        for (k = 0; k < NKU; k++) c->r[VR_KU + k] = ku[k];
+    }
+    c->r[VR_KH] = DEFAULT_KH; c->r[VR_RHO] = DEFAULT_RHO; c->r[VR_SIGMA] = DEFAULT_SIGMA;
+    c->r[VR_N] = DEFAULT_N; c->r[VR_LAM1] = DEFAULT_LAM1; c->r[VR_LAM2] = DEFAULT_LAM2;
+    c->r[VR_UMIN] = DEFAULT_UMIN; c->r[VR_UMAX] = DEFAULT_UMAX;
+    c->i[VR_K] = DEFAULT_K; c->i[VR_M] = DEFAULT_M; c->i[VR_L] = DEFAULT_L;
+    c->engine = DEFAULT_ENGINE;
+#endif
+}
+
+void inst_free_model(Instance *c) {
+    if (!c->built) return;
+#if PASS_THROUGH
+#elif MODEL_KIND == KIND_HYST
+    fonbw_free(&c->hyst);
+#elif MODEL_KIND == KIND_COMP
+    comp_free(&c->comp);
+#endif
+    c->built = 0;
+}
+
+#if MODEL_KIND != KIND_PLANT && MODEL_KIND != KIND_PID
+static FonbwParams params_of(const Instance *c) {
+    FonbwParams p;
+    int k;
+    memset(&p, 0, sizeof p);
+    p.N = NKU;
+    for (k = 0; k < NKU; k++) p.ku[k] = c->r[VR_KU + k];
+    p.kh = c->r[VR_KH]; p.rho = c->r[VR_RHO]; p.sigma = c->r[VR_SIGMA]; p.n = c->r[VR_N];
+    p.lam1 = c->r[VR_LAM1]; p.lam2 = c->r[VR_LAM2];
+    p.engine = c->engine; p.K = c->i[VR_K]; p.M = c->i[VR_M]; p.L = c->i[VR_L];
+    return p;
+}
+#endif
+
+/* build the model from the parameters: 0, or -1 with an fmi2Error log line */
+int inst_build_model(Instance *c) {
+    char msg[256];
+    const char *bad = NULL;
+    double dt = c->r[VR_DT];
+    int rc = 0;
+    inst_free_model(c);
+#if PASS_THROUGH
+    (void)rc;
+    if (!(isfinite(dt) && dt > 0.0)) {
+        snprintf(msg, sizeof msg, "dt = %.17g s must be a finite number > 0", dt);
+        bad = msg;
+    }
+#elif MODEL_KIND == KIND_PID
+    {
+        Pid *p = &c->pid;
+        memset(p, 0, sizeof *p);
+        p->kp = c->r[VR_KP]; p->ki = c->r[VR_KI]; p->kd = c->r[VR_KD]; p->dt = dt;
+        p->lo = c->r[VR_UMIN]; p->hi = c->r[VR_UMAX]; p->Tf = c->r[VR_TF]; p->Tt = c->r[VR_TT];
+        p->integrator = c->i[VR_INTEGRATOR]; p->anti_windup = c->i[VR_ANTI_WINDUP];
+        bad = pid_check(p, msg, sizeof msg);
+    }
+#elif MODEL_KIND == KIND_PLANT
+    {
+        static const double A[] = PLANT_A, B[] = PLANT_B, C[] = PLANT_C;
+        memset(&c->plant, 0, sizeof c->plant);
+        c->plant.n = NSTATES;
+        c->plant.D = PLANT_D;
+        memcpy(c->plant.C, C, sizeof C);
+        if (!(isfinite(dt) && dt > 0.0)) {
+            snprintf(msg, sizeof msg, "dt = %.17g s must be a finite number > 0", dt);
+            bad = msg;
+        } else if (PLANT_DT > 0.0) {
+            if (fabs(dt - PLANT_DT) > 1e-12 * PLANT_DT) {
+                snprintf(msg, sizeof msg, "dt = %.17g s differs from the sampling time %.17g s of the "
+                         "discrete-time plant", dt, (double)PLANT_DT);
+                bad = msg;
+            } else {
+                memcpy(c->plant.A, A, sizeof A);
+                memcpy(c->plant.B, B, sizeof B);
+            }
+        } else if (plant_c2d(NSTATES, A, B, dt, c->plant.A, c->plant.B) != 0) {
+            snprintf(msg, sizeof msg, "the plant cannot be discretized with dt = %.17g s", dt);
+            bad = msg;
+        }
+    }
+#else
+    {
+        FonbwParams p = params_of(c);
+        bad = fonbw_check(&p, dt, msg, sizeof msg);
+#if MODEL_KIND == KIND_COMP
+        if (!bad && !(isfinite(c->r[VR_UMIN]) && isfinite(c->r[VR_UMAX]) && c->r[VR_UMIN] < c->r[VR_UMAX])) {
+            snprintf(msg, sizeof msg, "u_min = %.17g V and u_max = %.17g V must be finite with u_min < u_max",
+                     c->r[VR_UMIN], c->r[VR_UMAX]);
+            bad = msg;
+        }
+        if (!bad) rc = comp_init(&c->comp, &p, dt, c->r[VR_UMIN], c->r[VR_UMAX]);
+#else
+        if (!bad) rc = fonbw_init(&c->hyst, &p, dt);
+#endif
+    }
+#endif
+    if (bad || rc != 0) {
+        fonbw_log(c, fmi2Error, "logStatusError", "invalid parameters: %s", bad ? bad : "out of memory");
+        return -1;
+    }
+    c->built = 1;
+    memcpy(c->built_from, c->r, sizeof c->r);
+    memcpy(c->built_from_i, c->i, sizeof c->i);
+    c->built_engine = c->engine;
+    return 0;
+}
+
+int inst_params_changed(const Instance *c) {
+    int vr;
+    for (vr = 0; vr < NVR; vr++) {
+        if (!inst_is_param(vr)) continue;
+        if (inst_is_real(vr) ? memcmp(&c->r[vr], &c->built_from[vr], sizeof(double)) != 0
+                        : c->i[vr] != c->built_from_i[vr]) return 1;
+    }
+    return c->engine != c->built_engine;
+}
+
+double inst_output(const Instance *c) {
+#if MODEL_KIND == KIND_PLANT && !PASS_THROUGH
+    return c->built ? plant_output(&c->plant, c->r[VR_IN]) : 0.0;
+#else
+    return c->r[VR_OUT];
+#endif
+}
+
+void inst_one_step(Instance *c) {
+#if PASS_THROUGH
+    c->r[VR_OUT] = c->r[VR_IN];
+#elif MODEL_KIND == KIND_PID
+    c->r[VR_OUT] = pid_step(&c->pid, c->r[VR_IN], c->r[VR_Y], c->r[VR_UFF]);
+#elif MODEL_KIND == KIND_HYST
+    c->r[VR_OUT] = fonbw_step(&c->hyst, c->r[VR_IN], 1);
+#elif MODEL_KIND == KIND_COMP
+    c->r[VR_OUT] = comp_step(&c->comp, c->r[VR_IN]);
+    c->i[VR_STATUS] = (int)c->comp.status;
+#else
+    plant_advance(&c->plant, c->r[VR_IN]);
+#endif
+}
+
+size_t inst_model_size(const Instance *c) {
+    if (!c->built) return 0;
+#if PASS_THROUGH
+    return 0;
+#elif MODEL_KIND == KIND_PID
+    return 3;
+#elif MODEL_KIND == KIND_HYST
+    return fonbw_state_size(&c->hyst);
+#elif MODEL_KIND == KIND_COMP
+    return comp_state_size(&c->comp);
+#else
+    return (size_t)c->plant.n;
+#endif
+}
+
+void inst_model_write(const Instance *c, double *d) {
+#if PASS_THROUGH
+    (void)c; (void)d;
+#elif MODEL_KIND == KIND_PID
+    d[0] = c->pid.i; d[1] = c->pid.e1; d[2] = c->pid.d1;
+#elif MODEL_KIND == KIND_HYST
+    fonbw_state_write(&c->hyst, d);
+#elif MODEL_KIND == KIND_COMP
+    comp_state_write(&c->comp, d);
+#else
+    memcpy(d, c->plant.x, sizeof(double) * (size_t)c->plant.n);
+#endif
+}
+
+int inst_model_read(Instance *c, const double *d, size_t nm) {
+#if PASS_THROUGH
+    (void)c; (void)d;
+    return nm != 0 ? -1 : 0;
+#elif MODEL_KIND == KIND_PID
+    if (nm != 3) return -1;
+    c->pid.i = d[0]; c->pid.e1 = d[1]; c->pid.d1 = d[2];
+    return 0;
+#elif MODEL_KIND == KIND_HYST
+    return fonbw_state_read(&c->hyst, d, nm);
+#elif MODEL_KIND == KIND_COMP
+    return comp_state_read(&c->comp, d, nm);
+#else
+    if (nm != (size_t)c->plant.n) return -1;
+    memcpy(c->plant.x, d, sizeof(double) * nm);
+    return 0;
+#endif
+}
