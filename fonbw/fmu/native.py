@@ -8,6 +8,9 @@ The FMUs, compiled from the C sources in ``fonbw/fmu/csrc/`` (package data):
 * ``FonbwPIDNative``          the closed loop's controller r, y, u_ff -> u
   (:class:`fonbw.loop.LoopController`: :class:`fonbw.pid.PIDStepper` with a
   feedforward added before the limits)
+* ``FonbwSignalNative``       -> y, a table of samples played one per step
+  (:func:`build_signal`; the libcosim master feeds the loop's exogenous
+  inputs with it, so its run needs no Python per step)
 
 and, for measuring what a master spends around the model, pass-through
 variants (``FonbwPass...Native``, :data:`PASS_NAMES`): the same variables,
@@ -41,13 +44,17 @@ from xml.etree.ElementTree import Element, SubElement, indent, tostring
 
 import fonbw
 
-__all__ = ["NATIVE_DIR", "NATIVE_NAMES", "PASS_NAMES", "PLATFORMS", "host_platform", "build_native", "build_native_one", "fmi_headers",
-           "compilers", "run"]
+__all__ = ["NATIVE_DIR", "NATIVE_NAMES", "PASS_NAMES", "PLATFORMS", "SIGNAL_NAME", "host_platform", "build_native",
+           "build_native_one", "build_signal", "fmi_headers", "compilers", "run"]
 
 #: The C sources (package data).
 NATIVE_DIR = Path(__file__).resolve().parent / "csrc"
-C_SOURCES = ("fonbw_fmi2.c", "fonbw_numerics.c", "fonbw_compensator.c", "fonbw_plant.c", "fonbw_pid.c")
-HEADERS = ("fonbw_numerics.h",)
+C_SOURCES = ("fonbw_fmi2.c", "fonbw_model.c", "fonbw_numerics.c", "fonbw_compensator.c", "fonbw_plant.c",
+             "fonbw_pid.c")
+HEADERS = ("fonbw_instance.h", "fonbw_numerics.h")
+#: The signal FMU is one self-contained source.
+SIGNAL_SOURCES = ("fonbw_signal.c",)
+SIGNAL_NAME = "FonbwSignalNative"
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 #: Model identifier of each kind (distinct from the pythonfmu FMUs').
 NATIVE_NAMES = {"hysteresis": "FonbwHysteresisNative", "compensator": "FonbwCompensatorNative",
@@ -145,11 +152,29 @@ def _pid_config(res: dict) -> dict:
     return cfg
 
 
+def _sources(kind: str) -> tuple:
+    """(C sources, headers) of an FMU of `kind`."""
+    return (SIGNAL_SOURCES, ()) if kind == "signal" else (C_SOURCES, HEADERS)
+
+
+def _name(kind: str, pass_through: bool = False) -> str:
+    if kind == "signal":
+        if pass_through:
+            raise NativeBuildError("the signal FMU has no pass-through variant")
+        return SIGNAL_NAME
+    return (PASS_NAMES if pass_through else NATIVE_NAMES)[kind]
+
+
 def config_header(kind: str, res: dict, guid: str, pass_through: bool = False) -> str:
     """Text of ``config.h`` for one FMU: its kind, GUID and start values
     (and ``PASS_THROUGH`` for the pass-through variant)."""
+    name = _name(kind, pass_through)
+    if kind == "signal":
+        return "\n".join([f"/* {name}: written by fonbw.fmu.native (fonbw {fonbw.__version__}) */",
+                          "#ifndef FONBW_CONFIG_H", "#define FONBW_CONFIG_H",
+                          f'#define INSTANTIATION_TOKEN "{guid}"', f"#define DEFAULT_DT {_c(res['dt'])}",
+                          "#endif"]) + "\n"
     cfg = {"plant": _plant_config, "pid": _pid_config}.get(kind, _model_config)(res)
-    name = (PASS_NAMES if pass_through else NATIVE_NAMES)[kind]
     lines = [f"/* {name}: written by fonbw.fmu.native (fonbw {fonbw.__version__}) */",
              "#ifndef FONBW_CONFIG_H", "#define FONBW_CONFIG_H",
              f"#define MODEL_KIND {KIND_CODES[kind]}", f'#define INSTANTIATION_TOKEN "{guid}"']
@@ -168,7 +193,7 @@ def config_header(kind: str, res: dict, guid: str, pass_through: bool = False) -
 _VR = {"in": 0, "out": 1, "kh": 2, "rho": 3, "sigma": 4, "n": 5, "lam1": 6, "lam2": 7, "dt": 8,
        "u_min": 9, "u_max": 10, "y": 11, "u_ff": 12, "kp": 13, "ki": 14, "kd": 15, "Tf": 16, "Tt": 17,
        "ku": 20, "K": 40, "M": 41, "L": 42, "status": 43, "memory": 50, "integrator": 51,
-       "anti_windup": 52}
+       "anti_windup": 52, "file": 60}
 _DT_DOC = "Internal fixed step; every communication step must be a whole multiple of it"
 
 
@@ -248,6 +273,16 @@ def _pid_variables(res: dict) -> list:
     return io + par
 
 
+def _signal_variables(res: dict) -> list:
+    return [("y", "Real", _VR["out"], "output", "continuous", None, None,
+             "Sample k of the table after k internal steps (the last sample past the end)"),
+            ("dt", "Real", _VR["dt"], "parameter", "fixed", "s", res["dt"],
+             "Sample step; " + _DT_DOC[0].lower() + _DT_DOC[1:]),
+            ("file", "String", _VR["file"], "parameter", "fixed", None, "",
+             "Text file of the samples, one number per line (17 significant digits read back "
+             "exactly); read at initialization")]
+
+
 def _plant_variables(res: dict) -> list:
     i, o = res["input"], res["output"]
     return [(i["name"], "Real", _VR["in"], "input", "continuous", i.get("unit"), 0.0,
@@ -266,6 +301,8 @@ _DESCRIPTIONS = {"hysteresis": "FONBW hysteresis of a piezo actuator (native C)"
 
 
 def _description(kind: str, res: dict, pass_through: bool) -> str:
+    if kind == "signal":
+        return "A table of samples played one per internal step: y = table[k] after k steps (native C)"
     if pass_through:
         return (f"Pass-through with the interface of {NATIVE_NAMES[kind]}: output = first input "
                 f"(a baseline for the cost of a master; native C)")
@@ -278,10 +315,11 @@ def model_description(kind: str, res: dict, guid: str, pass_through: bool = Fals
     """modelDescription.xml of one native FMU (or of its pass-through variant)."""
     from fonbw.fmu.slaves.fonbw_fmu_common import base_unit
 
-    mid = (PASS_NAMES if pass_through else NATIVE_NAMES)[kind]
+    mid = _name(kind, pass_through)
     plant = kind == "plant"
-    variables = {"plant": _plant_variables, "pid": _pid_variables}.get(
+    variables = {"plant": _plant_variables, "pid": _pid_variables, "signal": _signal_variables}.get(
         kind, lambda r: _fonbw_variables(r, kind))(res)
+    states = "false" if kind == "signal" else "true"
     root = Element("fmiModelDescription", {
         "fmiVersion": "2.0", "modelName": mid, "guid": guid, "generationTool": f"fonbw {fonbw.__version__}",
         "description": _description(kind, res, pass_through),
@@ -290,9 +328,9 @@ def model_description(kind: str, res: dict, guid: str, pass_through: bool = Fals
     cs = SubElement(root, "CoSimulation", {
         "modelIdentifier": mid, "needsExecutionTool": "false", "canHandleVariableCommunicationStepSize": "true",
         "canBeInstantiatedOnlyOncePerProcess": "false", "canNotUseMemoryManagementFunctions": "true",
-        "canGetAndSetFMUstate": "true", "canSerializeFMUstate": "true"})
+        "canGetAndSetFMUstate": states, "canSerializeFMUstate": states})
     files = SubElement(cs, "SourceFiles")
-    for f in C_SOURCES:
+    for f in _sources(kind)[0]:
         SubElement(files, "File", {"name": f})
     units = sorted({v[5] for v in variables if v[5]})
     if units:
@@ -336,7 +374,7 @@ def model_description(kind: str, res: dict, guid: str, pass_through: bool = Fals
 
 def _stage_sources(src: Path, kind: str, res: dict, guid: str, pass_through: bool) -> None:
     src.mkdir(parents=True)
-    for f in C_SOURCES + HEADERS:
+    for f in sum(_sources(kind), ()):
         shutil.copy(NATIVE_DIR / f, src / f)
     hdr = fmi_headers()
     for f in FMI_HEADERS:
@@ -344,11 +382,12 @@ def _stage_sources(src: Path, kind: str, res: dict, guid: str, pass_through: boo
     (src / "config.h").write_text(config_header(kind, res, guid, pass_through), encoding="utf-8")
 
 
-def compile_binary(src: Path, out: Path, platform: str, compiler: str | None = None) -> Path:
-    """Compile the sources in `src` into the shared library `out` for `platform`."""
+def compile_binary(src: Path, out: Path, platform: str, compiler: str | None = None,
+                   sources=C_SOURCES) -> Path:
+    """Compile the C `sources` in `src` into the shared library `out` for `platform`."""
     cc, _, extra = PLATFORMS[platform]
     cmd = [compiler or cc, *CFLAGS, *extra, "-I", str(src), "-o", str(out),
-           *[str(src / f) for f in C_SOURCES], "-lm"]
+           *[str(src / f) for f in sources], "-lm"]
     out.parent.mkdir(parents=True, exist_ok=True)
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
@@ -358,7 +397,7 @@ def compile_binary(src: Path, out: Path, platform: str, compiler: str | None = N
 
 def _guid(kind: str, res: dict, pass_through: bool = False) -> str:
     h = hashlib.sha1(json.dumps([kind, res, pass_through], sort_keys=True).encode())
-    for f in C_SOURCES + HEADERS:
+    for f in sum(_sources(kind), ()):
         h.update((NATIVE_DIR / f).read_bytes())
     return "{" + str(uuid.UUID(bytes=h.digest()[:16])) + "}"
 
@@ -377,10 +416,10 @@ def build_native_one(kind: str, res: dict, out_dir, platforms=None, pass_through
 
     Parameters
     ----------
-    kind : {"hysteresis", "compensator", "plant", "pid"}
+    kind : {"hysteresis", "compensator", "plant", "pid", "signal"}
     res : dict
-        Model or plant resource, or for ``pid`` a controller spec
-        (:func:`fonbw.loop.controller_spec`).
+        Model or plant resource, for ``pid`` a controller spec
+        (:func:`fonbw.loop.controller_spec`), for ``signal`` ``{"dt": step [s]}``.
     out_dir : path-like
         Output folder (created if missing).
     platforms : sequence of str, optional
@@ -401,7 +440,7 @@ def build_native_one(kind: str, res: dict, out_dir, platforms=None, pass_through
     if missing or not platforms:
         raise NativeBuildError(f"no compiler for {', '.join(missing) or 'any platform'} "
                                f"(need {', '.join(PLATFORMS[p][0] for p in missing or PLATFORMS)})")
-    mid = (PASS_NAMES if pass_through else NATIVE_NAMES)[kind]
+    mid = _name(kind, pass_through)
     guid = _guid(kind, res, pass_through)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -412,7 +451,8 @@ def build_native_one(kind: str, res: dict, out_dir, platforms=None, pass_through
         (stage / "modelDescription.xml").write_text(model_description(kind, res, guid, pass_through),
                                                     encoding="utf-8")
         for p in platforms:
-            compile_binary(stage / "sources", stage / "binaries" / p / (mid + PLATFORMS[p][1]), p)
+            compile_binary(stage / "sources", stage / "binaries" / p / (mid + PLATFORMS[p][1]), p,
+                           sources=_sources(kind)[0])
         tmp = out_dir / f".{mid}.fmu.tmp"
         with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
             for f in sorted(stage.rglob("*")):
@@ -423,6 +463,30 @@ def build_native_one(kind: str, res: dict, out_dir, platforms=None, pass_through
     if problems:
         raise NativeBuildError(f"{fmu} fails validation:\n  " + "\n  ".join(problems))
     return fmu
+
+
+def build_signal(out_dir, dt: float, platforms=None) -> Path:
+    """Build the signal FMU (``FonbwSignalNative``: y plays the samples of
+    the text file named by its String parameter ``file``, one per step of
+    `dt` [s]) into `out_dir`; see :func:`build_native_one`."""
+    return build_native_one("signal", {"dt": float(dt)}, out_dir, platforms)
+
+
+def cached_signal(cache_dir) -> Path | None:
+    """The signal FMU for this platform under `cache_dir` (a folder named by
+    its GUID), built on first use; None when this platform has no compiler.
+    Its dt is a parameter, so one build serves every step."""
+    import os
+
+    if host_platform() not in compilers():
+        return None
+    res = {"dt": 1e-4}
+    path = Path(cache_dir) / _guid("signal", res).strip("{}")[:13] / f"{SIGNAL_NAME}.fmu"
+    if not path.is_file():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
+            os.replace(build_native_one("signal", res, tmp, [host_platform()]), path)
+    return path
 
 
 def build_native(out_dir, *, params=None, plant=None, dt: float | None = None,
