@@ -15,10 +15,13 @@ Units: u [V], y, r [µm], t [s].
 """
 from __future__ import annotations
 
+import getpass
+import tempfile
 import time
 from pathlib import Path
 from typing import NamedTuple
 
+from . import lc_threads
 from .blocks import FmpyBlock, library_block, unzip
 from .fmus import fmu_settings
 from .spec import CosimError
@@ -125,22 +128,59 @@ def _run_fmpy(w, cfg, n, rest, dt) -> Stepped:
     return _run_blocks(lambda b: _fmpy_block(b, w, cfg), w, cfg, n, rest, dt)
 
 
-def _libcosim_setup(w, cfg, dt):
-    """A libcosim execution with the loop's FMUs, parameters and connections;
-    returns (execution, override manipulator, last-value observer,
-    [(slave, reference, exogenous sequence)], [(block, slave, output reference)])."""
+def _signal_fmu():
+    """The native signal FMU (built once into the per-user cache), or None
+    where this platform has no C compiler."""
+    from ..fmu import native
+
+    return native.cached_signal(Path(tempfile.gettempdir()) / f"fonbw-cosim-{getpass.getuser()}" / "native")
+
+
+def _add_slave(ex, fmu, name):
+    from libcosimpy.CosimSlave import CosimLocalSlave
+    from libcosimpy._internal import get_last_error_message
+
+    i = ex.add_local_slave(CosimLocalSlave(fmu_path=str(fmu), instance_name=name))
+    if i < 0:
+        raise CosimError(f"libcosim cannot load {fmu}: {get_last_error_message()}")
+    return i
+
+
+def _init(ex, i, ref, v, what):
+    from libcosimpy._internal import get_last_error_message
+
+    ok = ex.string_initial_value(i, ref, v) if isinstance(v, str) else ex.real_initial_value(i, ref, float(v))
+    if not ok:
+        raise CosimError(f"libcosim: cannot set {what}: {get_last_error_message()}")
+
+
+def _connect(ex, src, out, dst, inp, what):
+    from libcosimpy._internal import get_last_error_message
+
+    if ex.connect_real_variables(src, out, dst, inp) != 0:  # libcosimpy returns the C status here
+        raise CosimError(f"libcosim: cannot connect {what}: {get_last_error_message()}")
+
+
+def _libcosim_setup(w, cfg, dt, signal, table_dir):
+    """A libcosim execution with the loop's FMUs, parameters and connections,
+    and a time-series observer of every block's output.
+
+    Each exogenous input is fed by an instance of the signal FMU `signal`
+    (its samples written to a file in `table_dir`), connected like any
+    output: after k steps it gives sample k, which is what the block reads
+    in step k. Without `signal` (None) the inputs are listed for an override
+    manipulator instead. Returns (execution, observer, manipulator or None,
+    [(slave, reference, exogenous sequence)] for the manipulator,
+    [(block, slave, output reference)])."""
+    from libcosimpy.CosimEnums import CosimVariableType
     from libcosimpy.CosimExecution import CosimExecution
     from libcosimpy.CosimManipulator import CosimManipulator
     from libcosimpy.CosimObserver import CosimObserver
-    from libcosimpy.CosimSlave import CosimLocalSlave
-    from libcosimpy._internal import get_last_error_message
 
     ex = CosimExecution.from_step_size(round(dt * 1e9))
     idx, vr = {}, {}
     for b in w.blocks:
-        idx[b] = ex.add_local_slave(CosimLocalSlave(fmu_path=str(cfg["fmus"][b]), instance_name=b))
-        if idx[b] < 0:
-            raise CosimError(f"libcosim cannot load {cfg['fmus'][b]}: {get_last_error_message()}")
+        idx[b] = _add_slave(ex, cfg["fmus"][b], b)
         vars_ = ex.slave_variables(idx[b])
         vr[b] = {v.name.decode(): v.reference for v in vars_}
         if b == "plant":  # any SISO plant FMU: its own variable names
@@ -148,65 +188,100 @@ def _libcosim_setup(w, cfg, dt):
             outs = [v.name.decode() for v in vars_ if v.causality == 2]  # OUTPUT
             vr[b]["h"], vr[b]["x"] = vr[b][ins[0]], vr[b][outs[0]]
         for k, v in fmu_settings(b, cfg).items():
-            ok = (ex.string_initial_value(idx[b], vr[b][k], v) if isinstance(v, str)
-                  else ex.real_initial_value(idx[b], vr[b][k], float(v)))
-            if not ok:
-                raise CosimError(f"libcosim: cannot set parameter {k} of {b}: {get_last_error_message()}")
-    man = CosimManipulator.create_override()
-    ex.add_manipulator(man)
-    obs = CosimObserver.create_last_value()
+            _init(ex, idx[b], vr[b][k], v, f"parameter {k} of {b}")
+    man = None if signal else CosimManipulator.create_override()
+    if man is not None:
+        ex.add_manipulator(man)
+    obs = CosimObserver.create_time_series()
     ex.add_observer(obs)
     ext_in = []
     for b in w.blocks:
         for name, s in w.inputs(b):
             if s[0] == "out":
-                src = s[1]
-                rc = ex.connect_real_variables(idx[src], vr[src][IO[src][1]], idx[b], vr[b][name])
-                if rc != 0:  # libcosimpy returns the C status here, not a bool
-                    raise CosimError(f"libcosim: cannot connect {src} -> {b}.{name}: "
-                                     f"{get_last_error_message()}")
+                _connect(ex, idx[s[1]], vr[s[1]][IO[s[1]][1]], idx[b], vr[b][name], f"{s[1]} -> {b}.{name}")
+            elif s[1] != "zero" and signal:
+                table = Path(table_dir) / f"{s[1]}.txt"
+                table.write_text("\n".join(map(repr, w.ext[s[1]].tolist())) + "\n", encoding="ascii")
+                j = _add_slave(ex, signal, f"signal_{s[1]}")
+                sv = {v.name.decode(): v.reference for v in ex.slave_variables(j)}
+                _init(ex, j, sv["dt"], dt, f"dt of the signal {s[1]}")
+                _init(ex, j, sv["file"], str(table), f"file of the signal {s[1]}")
+                _connect(ex, j, sv["y"], idx[b], vr[b][name], f"signal {s[1]} -> {b}.{name}")
             elif s[1] != "zero":
                 ext_in.append((idx[b], vr[b][name], w.ext[s[1]]))
     outs = [(b, idx[b], vr[b][IO[b][1]]) for b in w.blocks]
-    return ex, man, obs, ext_in, outs
+    for _, i, ref in outs:
+        obs.start_time_series(i, ref, CosimVariableType.REAL)
+    return ex, obs, man, ext_in, outs
+
+
+def _samples(obs, outs, n):
+    """{block: outputs after steps 1..k} from the observer, k <= n the steps done."""
+    rec = {}
+    for b, i, ref in outs:
+        try:
+            _, steps, vals = obs.time_series_real_samples(i, ref, from_step=1, sample_count=max(n, 1))
+        except AssertionError:  # nothing recorded: the run stopped before its first step
+            steps, vals = [], []
+        if list(steps) != list(range(1, len(steps) + 1)):
+            raise CosimError(f"libcosim recorded {b} at steps {steps[:5]}..., not 1, 2, ...")
+        rec[b] = list(vals)
+    return rec
+
+
+def _step_libcosim(ex, man, ext_in, n):
+    """Step `ex` n times: first one step (libcosim initializes the slaves
+    inside it: timed as setup), then the rest in one call, or, with a
+    manipulator, one step at a time with the exogenous inputs set before
+    each. Returns (setup share [s], wall_s, cpu_s, ok)."""
+    t_init = time.perf_counter()
+    ok = n == 0 or _one_step(ex, man, ext_in, 0)
+    t0, c0 = time.perf_counter(), time.process_time()
+    if ok and n > 1:
+        if man is None:
+            ok = ex.step(n - 1)
+        else:
+            for k in range(1, n):
+                if not _one_step(ex, man, ext_in, k):
+                    ok = False
+                    break
+    return t0 - t_init, time.perf_counter() - t0, time.process_time() - c0, ok
+
+
+def _one_step(ex, man, ext_in, k):
+    if man is not None:
+        for i, ref, arr in ext_in:
+            man.slave_real_values(i, [ref], [float(arr[k])])
+    return ex.step(1)
 
 
 def _run_libcosim(w, cfg, n, rest, dt) -> Stepped:
-    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
-    from libcosimpy._internal import get_last_error_message
-
     if rest:
         raise ValueError(f"the libcosim master needs T to be a whole multiple of dt = {dt!r} s "
                          f"(its fixed-step algorithm takes no shorter final step)")
     ns = round(dt * 1e9)
     if abs(ns * 1e-9 - dt) > 1e-12 * dt:
         raise ValueError(f"dt = {dt!r} s is not a whole number of nanoseconds (libcosim's time unit)")
+    lc_threads.prepare()  # before libcosimpy loads libcosimc
+    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+    from libcosimpy._internal import get_last_error_message
+
     log_output_level(CosimLogLevel.ERROR)
     t_setup = time.perf_counter()
-    ex, man, obs, ext_in, outs = _libcosim_setup(w, cfg, dt)
-    setup = time.perf_counter() - t_setup
-    rec = {b: [] for b in w.blocks}
-    error = None
-    t0, c0 = time.perf_counter(), time.process_time()
-    for k in range(n):
-        if k == 1:
-            # libcosim initializes the slaves inside the first step: count that
-            # step as setup, so wall_s is the stepping alone as for fmpy
-            t1 = time.perf_counter()
-            setup += t1 - t0
-            t0, c0 = t1, time.process_time()
-        for i, ref, arr in ext_in:
-            man.slave_real_values(i, [ref], [float(arr[k])])
-        if not ex.step(1):
-            error = (f"co-simulation stopped at t={k * dt!r} s (step {k}): libcosim step failed: "
-                     f"{get_last_error_message()}")
-            break
-        for b, i, ref in outs:
-            rec[b].append(obs.last_real_values(i, [ref])[0])
-    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    k_done = k if error else n
-    del ex
-    return Stepped(w.trace(rec, k_done), error, wall, cpu, setup, {})
+    signal = _signal_fmu()
+    with tempfile.TemporaryDirectory(prefix="fonbw_lc_") as tables:
+        with lc_threads.single_thread() as threads:
+            ex, obs, man, ext_in, outs = _libcosim_setup(w, cfg, dt, signal, tables)
+        setup = time.perf_counter() - t_setup
+        init, wall, cpu, ok = _step_libcosim(ex, man, ext_in, n)
+        rec = _samples(obs, outs, n)
+        k_done = min(len(v) for v in rec.values()) if rec else 0
+        error = None if ok else (f"co-simulation stopped at t={k_done * dt!r} s (step {k_done}): "
+                                 f"libcosim step failed: {get_last_error_message()}")
+        del ex
+    diagnostics = {"libcosim": {"worker_threads": threads["workers"], "stepping": threads["note"],
+                                "exogenous": "signal FMUs" if signal else "override manipulator, per step"}}
+    return Stepped(w.trace(rec, k_done), error, wall, cpu, setup + init, diagnostics)
 
 
 _MASTERS = {"reference": _run_reference, "fmpy": _run_fmpy, "libcosim": _run_libcosim}
