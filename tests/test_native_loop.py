@@ -153,3 +153,46 @@ def test_cli_native(fmu_dir, tmp_path, capsys):
     assert rc == 0
     out = capsys.readouterr().out
     assert "fmpy native" in out and "200 steps" in out
+
+
+def test_libcosim_exogenous_inputs_both_ways(fmu_dir, monkeypatch):
+    """The libcosim master feeds the exogenous inputs from signal FMUs (one
+    ex.step call for the run); without a C compiler it sets them with an
+    override manipulator before every step. Both give the same trace, bit
+    for bit."""
+    pytest.importorskip("libcosimpy")
+    from fonbw.loop import masters
+
+    a = run_cosim("sine5", "ff+fb", "libcosim", T=T, plant="dynamics+creep", native=True, fmu_dir=fmu_dir)
+    monkeypatch.setattr(masters, "_signal_fmu", lambda: None)
+    b = run_cosim("sine5", "ff+fb", "libcosim", T=T, plant="dynamics+creep", native=True, fmu_dir=fmu_dir)
+    assert a.diagnostics["libcosim"]["exogenous"] == "signal FMUs"
+    assert b.diagnostics["libcosim"]["exogenous"] == "override manipulator, per step"
+    assert a.error is None and b.error is None and a.steps == b.steps == round(T / DT)
+    for k in ("r", *TRACE):
+        np.testing.assert_array_equal(getattr(a, k), getattr(b, k), err_msg=k)
+
+
+def test_libcosim_runs_without_worker_thread(fmu_dir, tmp_path):
+    """In a fresh process the libcosim master's execution has no worker
+    thread (the steps run on the calling thread) and still agrees with the
+    reference master."""
+    pytest.importorskip("libcosimpy")
+    import subprocess
+    import sys
+
+    code = ("import json, sys, numpy as np\n"
+            "from fonbw.loop import run_cosim\n"
+            "r = run_cosim('sine5', 'fb', 'libcosim', T=0.02, native=True, fmu_dir=sys.argv[1])\n"
+            "ref = run_cosim('sine5', 'fb', 'reference', T=0.02)\n"
+            "print(json.dumps({'d': r.diagnostics, 'err': r.error, 'dy': float(np.max(np.abs(r.y - ref.y))),"
+            " 'y': float(np.max(np.abs(ref.y)))}))\n")
+    p = subprocess.run([sys.executable, "-c", code, str(fmu_dir)], capture_output=True, text=True, timeout=300,
+                       cwd=str(tmp_path))
+    assert p.returncode == 0, p.stderr[-2000:]
+    import json
+
+    out = json.loads(p.stdout.strip().splitlines()[-1])
+    assert out["err"] is None
+    assert out["d"]["libcosim"]["worker_threads"] == 0, out["d"]
+    assert out["dy"] <= REL * out["y"]
