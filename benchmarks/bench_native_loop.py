@@ -9,6 +9,16 @@ and checks, output = first input), alternately, `--repeat` times; the best
 real-time factor of each is printed with the CPU-time one and the load
 average, so the master's own share of the cost is visible.
 
+The libcosim master runs the whole horizon in one ``ex.step`` call: the
+exogenous inputs come from signal FMUs (FonbwSignalNative playing the
+sequences), the outputs from libcosim's time-series observer, and the
+execution is created with no worker thread (fonbw.loop.lc_threads), so its
+figures are libcosim's fixed-step algorithm plus the FMUs, with no Python
+per step. What that thread costs is measured after the loops: libcosim
+alone, stepping 1 and 4 pass-through slaves with no connections, with its
+worker thread (as libcosimpy creates executions), with that thread and the
+caller pinned to one CPU, and with no worker.
+
     python benchmarks/bench_native_loop.py [--T 1.0] [--repeat 2]
 """
 from __future__ import annotations
@@ -17,6 +27,7 @@ import argparse
 import os
 import sys
 import tempfile
+import time
 from unittest import mock
 
 from fonbw.loop import run_cosim
@@ -32,6 +43,34 @@ def _run(master, T, fmu_dir, passthrough=None):
         return run_cosim(SCENARIO, MODE, master, T=T, plant=PLANT, native=True, fmu_dir=fmu_dir)
     with mock.patch("fonbw.loop.run.build_fmus", lambda *a, **k: dict(passthrough)):
         return run_cosim(SCENARIO, MODE, master, T=T, plant=PLANT, native=True, fmu_dir=fmu_dir)
+
+
+def _libcosim_alone(fmus, n, how):
+    """Wall time per step [µs] of libcosim's fixed-step algorithm stepping
+    the FMUs `fmus` (no connections, no observer) n times in one call;
+    `how`: "worker", "pinned" (the caller and the worker on one CPU) or
+    "no worker"."""
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimSlave import CosimLocalSlave
+
+    from fonbw.loop import lc_threads
+
+    mask = os.sched_getaffinity(0)
+    if how == "pinned":  # threads inherit the mask when the execution creates them
+        os.sched_setaffinity(0, {min(mask)})
+    try:
+        with lc_threads.single_thread(how == "no worker") as info:
+            ex = CosimExecution.from_step_size(100_000)
+            for j, f in enumerate(fmus):
+                ex.add_local_slave(CosimLocalSlave(fmu_path=str(f), instance_name=f"s{j}"))
+        assert ex.step(1)  # initialization
+        t0 = time.perf_counter()
+        assert ex.step(n)
+        wall = time.perf_counter() - t0
+        del ex
+    finally:
+        os.sched_setaffinity(0, mask)
+    return 1e6 * wall / n, info["workers"]
 
 
 def main(argv=None) -> int:
@@ -57,11 +96,27 @@ def main(argv=None) -> int:
             for tag, r in best.items():
                 print(f"{master:8s} {tag:12s}: rtf {r.rtf:7.2f} (CPU {r.sim_time_s / r.cpu_s:7.2f}), "
                       f"{1e6 * r.wall_s / r.steps:7.1f} us/step, setup {r.setup_s:.3f} s")
+            lc = best["native"].diagnostics.get("libcosim")
+            if lc:
+                print(f"{master:8s} stepping: {lc['stepping']} (worker threads {lc['worker_threads']}); "
+                      f"exogenous inputs: {lc['exogenous']}; one ex.step call for the run"
+                      if lc["exogenous"] == "signal FMUs" else f"{master:8s} stepping: {lc['stepping']}; "
+                      f"exogenous inputs: {lc['exogenous']}")
             n, p = best["native"], best["pass-through"]
             print(f"{master:8s} native / pass-through wall time: {n.wall_s / p.wall_s:.2f} "
                   f"(the FMUs' own share {max(0.0, 1 - p.wall_s / n.wall_s):.0%}); target rtf >= "
                   f"{TARGETS.get(master, 0):g}: {'met' if n.rtf >= TARGETS.get(master, 0) else 'NOT met'}; "
                   f"load {os.getloadavg()}")
+        if "libcosim" in ns.masters:
+            n = round(ns.T / 1e-4)
+            pts = list(passthrough.values())
+            print(f"libcosim alone, {n} steps of pass-through slaves in one ex.step call (no connections, "
+                  f"no observer), us/step:")
+            for slaves in (pts[:1], pts[:4]):
+                row = {how: _libcosim_alone(slaves, n, how) for how in ("worker", "pinned", "no worker")}
+                print(f"  {len(slaves)} slave(s): " + ", ".join(
+                    f"{how} {us:6.1f} ({w} worker thread{'s' * (w != 1)})" for how, (us, w) in row.items()))
+            print(f"load {os.getloadavg()}")
     return 0
 
 
