@@ -21,7 +21,9 @@ Differences from `scipy.optimize.differential_evolution`:
 * parameters flagged in ``log_scale`` are searched uniformly in log10 of their
   magnitude (sign kept), for parameters spanning decades;
 * non-finite costs are +inf (divergent candidates lose every comparison);
-* ``max_evals`` is a hard cap on evaluations, polish included;
+* ``max_evals`` is a hard cap on evaluations, polish included; what a polish
+  that converged early leaves of its budget goes back to DE (then a last
+  polish), when DE had stopped on its budget;
 * Ctrl-C returns the best point found so far (``message == "interrupted"``).
 
 Internally every parameter lives on the unit interval [0, 1]; the map to the
@@ -41,6 +43,8 @@ _TAU1 = 0.1     # probability of regenerating F_i
 _TAU2 = 0.1     # probability of regenerating CR_i
 _F_LOW = 0.1    # F_l
 _F_UP = 0.9     # F_u: F = F_l + rand * F_u lies in [0.1, 1.0]
+
+_BUDGET_MSG = "maximum number of evaluations reached"
 
 
 @dataclass
@@ -201,10 +205,13 @@ def jde_minimize(func_pop: Callable[[np.ndarray], np.ndarray],
     tol_stagnation, patience : float, int
         Stop (success) when the best cost improved by no more than
         ``tol_stagnation * |best|`` over the last ``patience`` generations.
-    polish : bool or {"L-BFGS-B", "Nelder-Mead"}
+    polish : bool, {"L-BFGS-B", "Nelder-Mead"} or callable
         Refine the best point with ``scipy.optimize.minimize`` in the internal
         unit-cube coordinates. True means L-BFGS-B, with central-difference
-        gradients evaluated as one (2d + 1, d) population call.
+        gradients evaluated as one (2d + 1, d) population call. A callable
+        ``polish(z0, f0, budget) -> (z, f, nfev)`` refines in the unit-cube
+        coordinates itself (e.g. Gauss-Newton on residuals), using at most
+        ``budget`` evaluations and returning a point no worse than (z0, f0).
     polish_maxfev : int, optional
         Evaluation budget of the polish, taken out of ``max_evals``.
         Default ``min(40 (2d + 1), max_evals // 10)``.
@@ -248,11 +255,11 @@ def _check_options(space, popsize, max_evals, tol_stagnation, patience, polish,
         polish_method = "L-BFGS-B"
     elif polish is False or polish is None:
         polish_method = None
-    elif polish in ("L-BFGS-B", "Nelder-Mead"):
+    elif polish in ("L-BFGS-B", "Nelder-Mead") or callable(polish):
         polish_method = polish
     else:
         raise ValueError(
-            f"polish must be True, False, 'L-BFGS-B' or 'Nelder-Mead', got {polish!r}")
+            f"polish must be True, False, 'L-BFGS-B', 'Nelder-Mead' or a callable, got {polish!r}")
     if polish_method is None:
         polish_budget = 0
     elif polish_maxfev is None:
@@ -397,7 +404,7 @@ patience, polish, polish_maxfev, progress, callback, x0
         """One generation; False (and ``message`` set) when the budget is spent."""
         remaining = self.de_budget - self.nfev
         if remaining <= 0:
-            self.message = "maximum number of evaluations reached"
+            self.message = _BUDGET_MSG
             return False
         # The last generation may be partial so the budget is used exactly.
         m = min(self.P, remaining)
@@ -436,6 +443,15 @@ patience, polish, polish_maxfev, progress, callback, x0
         try:
             self.cost = self.evaluate(self.pop)
             self.history.append(self.cost.min())
+        except KeyboardInterrupt:
+            self.message = "interrupted"
+            self.success = False
+            return
+        self.more_generations()
+
+    def more_generations(self):
+        """Evolve the current population until a stop; Ctrl-C stops too."""
+        try:
             while self.message is None:
                 if not self.evolve() or self.check_stop():
                     break
@@ -443,20 +459,48 @@ patience, polish, polish_maxfev, progress, callback, x0
             self.message = "interrupted"
             self.success = False
 
-    def polish_best(self):
-        """Best (z, f) of the population, locally refined unless polish is off or
-        the run was interrupted."""
+    def polish_best(self, budget=None):
+        """Best (z, f) of the population, locally refined (within `budget`
+        evaluations, default ``polish_budget``) unless polish is off or the run
+        was interrupted."""
+        budget = self.polish_budget if budget is None else budget
         ib = int(np.argmin(self.cost))
         z_best = self.pop[ib].copy()
         f_best = float(self.cost[ib])
         if (self.message != "interrupted" and self.polish_method is not None
-                and self.polish_budget > 0 and np.isfinite(f_best)):
+                and budget > 0 and np.isfinite(f_best)):
             try:
-                z_best, f_best = _polish(self.evaluate, z_best, f_best, self.polish_method,
-                                         self.polish_budget, lambda: self.nfev)
+                if callable(self.polish_method):
+                    z_best, f_best, used = self.polish_method(z_best, f_best, budget)
+                    self.nfev += int(used)
+                    if self._pbar is not None:
+                        self._pbar.update(int(used))
+                else:
+                    z_best, f_best = _polish(self.evaluate, z_best, f_best, self.polish_method,
+                                             budget, lambda: self.nfev)
             except KeyboardInterrupt:
                 self.message = "interrupted"
                 self.success = False
+        return z_best, f_best
+
+    def resume(self, z_best, f_best):
+        """Spend what a polish left of its budget: the polished point joins the
+        population, DE goes on with half of the rest and a polish gets the other half.
+
+        A polish that stops early has settled in a local minimum; when DE had
+        stopped on its budget (not on stagnation or a collapse), the evaluations
+        left are worth more to the global search than unused. Returns the best
+        (z, f) of the last polish.
+        """
+        while (self.message == _BUDGET_MSG and self.polish_method is not None
+               and self.max_evals - self.nfev >= 2 * self.P):
+            ib = int(np.argmin(self.cost))
+            self.pop[ib], self.cost[ib] = z_best, f_best
+            left = self.max_evals - self.nfev
+            self.de_budget = self.nfev + left - min(self.polish_budget, left // 2)
+            self.message = None
+            self.more_generations()
+            z_best, f_best = self.polish_best(self.max_evals - self.nfev)
         return z_best, f_best
 
     def solve(self) -> DEResult:
@@ -466,7 +510,7 @@ patience, polish, polish_maxfev, progress, callback, x0
             self._pbar = tqdm(total=self.max_evals, unit="eval", desc="jDE")
         self.init_population()
         self.run_generations()
-        z_best, f_best = self.polish_best()
+        z_best, f_best = self.resume(*self.polish_best())
         if self._pbar is not None:
             self._pbar.close()
         if not np.isfinite(f_best):

@@ -44,7 +44,7 @@ name           meaning                      default range (U = max|u| [V])
 ``rho``        ρ                            log, [1e-7, 1e4]/U
 ``sigma_rho``  σ^(1/n) ρ                    log, [1e-3, 1e4]/U
 ``n``          n                            linear, [1, 4]
-``lam1/lam2``  λ1, λ2 (FONBW only)          linear, [0.05, 1]
+``lam1/lam2``  λ1, λ2 (FONBW only)          linear, [λ_lo, 1] (below)
 =============  ===========================  ==================================
 
 and σ = (sigma_rho/ρ)^n. The map is a bijection, linear in log coordinates:
@@ -69,6 +69,36 @@ c0/(2 sqrt(k0 m0)) log [0.05, 20], ``k1_rel`` = k1/(τA) linear [−2, 2],
 BW equation; outside it most candidates diverge), ``delta_rel`` = δ/A [1/s]
 linear [−20, 20], ``n``.
 Override any range with ``bounds={"rho": (lo, hi), ...}``.
+
+Ranges the records can identify
+-------------------------------
+Two default ranges follow the data (:mod:`fonbw.identifiable`), so that a
+fit cannot run off along directions the records do not see:
+
+* λ1, λ2 ∈ [λ_lo, 1] with λ_lo from the records' *rate span* R: the input is
+  cut into monotone swings between reversals (a reversal counts once the
+  input came back by 2 % of its range), a swing of duration T has the
+  frequency 1/(2T), and R is the ratio of the 90th to the 10th percentile of
+  those frequencies, each swing weighted by its stroke (the first and last
+  swing of a record, cut by its ends, left out). Then
+
+      λ_lo = clip(0.5 − 0.45 log10(R), 0.05, 0.5):
+
+  0.5 for records of a single rate (R = 1: a bipolar 1 Hz drive), the full
+  0.05 from a decade of rates on. The gain (2πf)^λ of the GL derivatives is
+  what tells λ from ρ; with one rate it is a constant that ρ and the gains
+  absorb, and the search ran to the corner λ → 0 (an operator near the
+  identity). Examples: eq. (19) over 10 s, R = 3.3, λ_lo = 0.27; over 30 s,
+  R = 6.3, λ_lo = 0.14; a triangle wave of 3 periods at 1 Hz then 12 at 4 Hz,
+  R = 4, λ_lo = 0.229.
+* σ ≤ 1e3 (FONBW/NBW/CBW): a candidate with (sigma_rho/ρ)^n > 1e3 is
+  evaluated with ρ raised to sigma_rho·1e3^(−1/n) (``SearchSpace.project``;
+  ``search["x"]`` holds the projected point). At fixed σ^(1/n)ρ, σ changes
+  the loop only through 1 − 1/σ and the saturation of ħ that a small ρ puts
+  out of reach, by less than 0.1 % of the hysteretic term past 1e3; the
+  search used to drift there (σ = 1e7 to 1e15 on bipolar records), with
+  parameters that meant nothing. The paper's Table 1 (σ = 1.3e5, ħ ≪ 1) is
+  matched at σ = 1e3 to the noise floor (tests/test_identify.py).
 """
 from __future__ import annotations
 
@@ -78,14 +108,19 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from fonbw.de import jde_minimize
+from fonbw.de import _Space, jde_minimize
 from fonbw.fitcheck import parameter_check
+from fonbw.gnpolish import gauss_newton_polish
+from fonbw.identifiable import LAM_MIN, SIGMA_MAX, lambda_floor, rate_span
 from fonbw.objective import Projected as _Projected, as_records as _as_records, rms_cost, simulate_record
 
 __all__ = ["KINDS", "IdentifyResult", "SearchSpace", "search_space", "identify",
            "rms_cost", "simulate_record"]
 
 KINDS = ("fonbw", "nbw", "cbw", "zhu")
+
+#: Generations the default population size aims DE's share of the budget at.
+GENERATIONS = 40
 
 
 @dataclass
@@ -162,6 +197,9 @@ class SearchSpace:
     final_params : callable
         ``final_params(x, c, G) -> dict`` of natural parameters from one search
         vector x, the coefficients c of F and the gain G of s.
+    project : callable, optional
+        ``project(X) -> X`` onto the search vectors the maps actually use
+        (σ ≤ :data:`fonbw.identifiable.SIGMA_MAX` by raising ρ); identity if None.
     """
 
     kind: str
@@ -171,6 +209,7 @@ class SearchSpace:
     basis_params: Callable = field(repr=False)
     fixed_columns: Callable = field(repr=False)
     final_params: Callable = field(repr=False)
+    project: Callable | None = field(default=None, repr=False)
 
 
 # --------------------------------------------------------------------------
@@ -204,7 +243,8 @@ def search_space(kind: str, records, *, N: int = 3, bounds: Mapping | None = Non
     recs = _as_records(records)
     U = max(float(np.max(np.abs(u))) for u, _, _ in recs)
     if kind in ("fonbw", "nbw", "cbw"):
-        space = _bw_space(kind, U, int(N) if kind != "cbw" else 1, reparametrize)
+        lam_lo = lambda_floor(rate_span(recs)) if kind == "fonbw" else LAM_MIN
+        space = _bw_space(kind, U, int(N) if kind != "cbw" else 1, reparametrize, lam_lo)
     else:
         space = _zhu_space(U)
     if bounds is not None:
@@ -212,19 +252,29 @@ def search_space(kind: str, records, *, N: int = 3, bounds: Mapping | None = Non
     return space
 
 
-def _bw_space(kind, U, Np, reparametrize):
-    """FONBW, NBW or CBW search space (module docstring) for max|u| = U [V]."""
+def _bw_space(kind, U, Np, reparametrize, lam_lo=LAM_MIN):
+    """FONBW, NBW or CBW search space (module docstring) for max|u| = U [V] and
+    the lower bound `lam_lo` of the fractional orders."""
     names = ["rho", "sigma_rho" if reparametrize else "sigma", "n"]
     bnds = [(1e-7 / U, 1e4 / U),
-            (1e-3 / U, 1e4 / U) if reparametrize else (1e-2, 1e8),
+            (1e-3 / U, 1e4 / U) if reparametrize else (1e-2, SIGMA_MAX),
             (1.0, 4.0)]
     logs = [True, True, False]
     if kind == "fonbw":
         names += ["lam1", "lam2"]
-        bnds += [(0.05, 1.0), (0.05, 1.0)]
+        bnds += [(lam_lo, 1.0), (lam_lo, 1.0)]
         logs += [False, False]
 
+    def project(X):
+        # σ = (sigma_rho/ρ)^n ≤ SIGMA_MAX: ρ is raised to its floor at that σ
+        # (beyond it ρ only moves along a flat direction, fonbw.identifiable).
+        X = np.array(X, dtype=float, ndmin=2)
+        if reparametrize:
+            X[:, 0] = np.maximum(X[:, 0], X[:, 1] * SIGMA_MAX ** (-1.0 / X[:, 2]))
+        return X
+
     def rho_sigma_n(X):
+        X = project(X)
         rho, n = X[:, 0], X[:, 2]
         sigma = (X[:, 1] / rho) ** n if reparametrize else X[:, 1]
         return rho, sigma, n
@@ -262,7 +312,7 @@ def _bw_space(kind, U, Np, reparametrize):
             return p
     return SearchSpace(kind=kind, names=names, bounds=bnds, log_scale=logs,
                        basis_params=basis_params, fixed_columns=fixed_columns,
-                       final_params=final_params)
+                       final_params=final_params, project=project)
 
 
 def _zhu_space(U):
@@ -371,9 +421,11 @@ def identify(records, kind: str = "fonbw", *, seed=None, max_evals: int = 5000,
         model's saved JSON then record the slope reached.
     popsize, polish, polish_maxfev, callback
         Passed to :func:`fonbw.de.jde_minimize`; ``polish_maxfev`` defaults to
-        30 % of ``max_evals`` (local refinement pays off here); ``popsize``
-        defaults to jDE's clip(10 d, 20, 100), reduced for budgets too small
-        for five generations of it.
+        30 % of ``max_evals`` (local refinement pays off here; what a polish
+        that converges early leaves goes back to DE); ``popsize`` defaults to
+        jDE's clip(10 d, 20, 100), reduced (not below 4 d) so that DE's share
+        of the budget runs about :data:`GENERATIONS` generations, and for
+        budgets too small for five generations of it.
 
     Returns
     -------
@@ -396,6 +448,10 @@ def identify(records, kind: str = "fonbw", *, seed=None, max_evals: int = 5000,
         from fonbw.invertibility import ConstrainedProjection
         proj = ConstrainedProjection(proj, for_compensation)
 
+    if polish is True and type(proj) is _Projected:
+        # Gauss-Newton on the residuals: a few Jacobians instead of tens of
+        # quasi-Newton steps (fonbw.gnpolish); a constrained solve keeps L-BFGS-B.
+        polish = gauss_newton_polish(proj, _Space(space.bounds, space.log_scale))
     res, wall = _search(proj, workers, popsize=popsize, max_evals=int(max_evals), seed=seed, polish=polish,
                         polish_maxfev=polish_maxfev, progress=progress, callback=callback)
     from fonbw.invertibility import annotate_result
@@ -446,11 +502,15 @@ def _de_settings(space, max_evals, polish, polish_maxfev, popsize, workers, max_
         raise ValueError(f"workers must be an integer in [1, "
                          f"{max_threads}], got {workers!r}")
     if popsize is None:
-        # jDE's default population, shrunk for small budgets so that at least
-        # about five generations run (a tiny budget is a user's explicit choice).
+        # jDE's default population, shrunk (to no fewer than 4 d) so that DE
+        # runs about GENERATIONS generations: with 10 d individuals and ~1000
+        # evaluations for DE it had 21 and settled in a wrong basin on 3 seeds
+        # of 5 of the 5-kHz eq.-(19) record (BENCHMARKS.md). A tiny budget is a
+        # user's explicit choice: about five generations at least.
         d = len(space.names)
         de_budget = int(max_evals) - (int(polish_maxfev) if polish else 0)
-        popsize = int(min(np.clip(10 * d, 20, 100), max(4, de_budget // 5)))
+        full = int(np.clip(10 * d, 20, 100))
+        popsize = int(min(full, max(4 * d, de_budget // GENERATIONS), max(4, de_budget // 5)))
     return polish_maxfev, popsize
 
 
@@ -468,8 +528,9 @@ def _identify_result(proj, res, wall, records, check=True):
     if not np.isfinite(res.fun):
         raise RuntimeError(f"identify({kind!r}): every candidate diverged "
                            f"({res.nfev} evaluations); check the data and bounds")
-    _, G, c = proj.solve(res.x[None, :])
-    params = space.final_params(res.x, c[0], float(G[0]))
+    x = space.project(res.x)[0] if space.project is not None else res.x
+    _, G, c = proj.solve(x[None, :])
+    params = space.final_params(x, c[0], float(G[0]))
     theta = np.array([params[k] for k in proj.pnames], dtype=float)
     model = hyst.model_from_vector(kind, theta, N=Nsim, memory=memory)
     base = getattr(proj, "proj", proj)  # the plain projection under a constrained one
@@ -480,12 +541,12 @@ def _identify_result(proj, res, wall, records, check=True):
         rms = _rms_after_burn_in(model, base, offsets)
     else:
         rms = float(rms_cost(kind, theta[None, :], records, memory=memory, N=Nsim)[0])
-    intervals, warns = parameter_check(base, res.x) if check else ({}, [])
+    intervals, warns = parameter_check(base, x) if check else ({}, [])
     return IdentifyResult(model=model, kind=kind, params=params, rms=rms,
                           nfev=res.nfev, wall_time=wall, history=res.history,
                           success=res.success, message=res.message,
                           search={"names": space.names, "bounds": space.bounds,
-                                  "log_scale": space.log_scale, "x": res.x},
+                                  "log_scale": space.log_scale, "x": x},
                           burn_in=list(base.burn_in), offsets=offsets, warnings=warns,
                           intervals=intervals)
 

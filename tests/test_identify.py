@@ -267,7 +267,7 @@ def test_keyboard_interrupt_returns_best_model_so_far(truth):
         if nit == 2:
             raise KeyboardInterrupt
 
-    res = identify(rec, "fonbw", seed=0, max_evals=2000, callback=stop)
+    res = identify(rec, "fonbw", seed=0, max_evals=2000, popsize=50, callback=stop)
     assert res.message == "interrupted" and not res.success
     assert res.nfev == 3 * 50          # initial population + 2 generations
     assert np.isfinite(res.rms)
@@ -278,6 +278,17 @@ def test_unknown_memory_engine_is_refused(truth):
     rec = noisy_record(truth, eq19(T=1.0), seed=0)
     with pytest.raises(ValueError, match="memory must be one of"):
         identify(rec, "fonbw", memory="infinite")
+
+
+def test_default_population_aims_at_forty_generations(truth):
+    from fonbw.identify import _de_settings
+
+    space = search_space("fonbw", noisy_record(truth, eq19(T=2.0), seed=12))
+    # 1500 evaluations: 450 for the polish, 1050 for DE = 40 generations of 26
+    assert _de_settings(space, 1500, True, None, None, None, 2) == (450, 26)
+    # 3000: 2100 for DE, 52 capped at jDE's 10 d = 50; 500: 350 // 40 = 8, floored at 4 d = 20
+    assert _de_settings(space, 3000, True, None, None, None, 2) == (900, 50)
+    assert _de_settings(space, 500, True, None, None, None, 2) == (150, 20)
 
 
 def test_small_budget_shrinks_population_and_respects_cap(truth):
@@ -349,3 +360,61 @@ def test_burn_in_leaves_the_start_out_and_fits_the_offset(truth):
     assert res.rms < 0.05
     with pytest.raises(ValueError, match=r"burn_in\[0\] = -1: need an integer"):
         identify(rec, "fonbw", burn_in=[-1])
+
+
+# --------------------------------------------------------------------------
+# Ranges the records can identify: λ floor from the rate span, σ cap
+# --------------------------------------------------------------------------
+
+def _triangle(f, periods, dt=1e-3, A=100.0):
+    """Triangle wave from −A [V], `periods` periods of frequency f [Hz]."""
+    t = np.arange(int(round(periods / f / dt))) * dt
+    phase = (t * f) % 1.0
+    return A * (4.0 * np.abs(phase - 0.5) - 1.0) * -1.0
+
+
+def test_rate_span_and_lambda_floor_by_hand():
+    from fonbw.identifiable import lambda_floor, rate_span, swings
+
+    u = np.concatenate([_triangle(1.0, 3), _triangle(4.0, 12)])
+    f, stroke = swings(u, 1e-3)
+    # 6 + 24 swings of 200 V; the first and last are cut by the record's ends
+    assert f.size == 28 and np.allclose(stroke, 200.0)
+    assert np.allclose(np.sort(f), [1.0] * 5 + [4.0] * 23)
+    # 5 of 28 equal strokes at 1 Hz (18 %) put the 10th percentile there
+    assert rate_span([(u, 1e-3)]) == pytest.approx(4.0)
+    assert lambda_floor(4.0) == pytest.approx(0.5 - 0.45 * np.log10(4.0))  # 0.2291
+    assert lambda_floor(1.0) == 0.5 and lambda_floor(10.0) == pytest.approx(0.05)
+    assert lambda_floor(1e3) == pytest.approx(0.05)
+    # one rate: the floor of a single-rate record
+    assert rate_span([(_triangle(2.0, 5), 1e-3)]) == 1.0
+    rec = Record.from_arrays(u=u + 100.0, y=np.sin(u / 30.0), dt=1e-3)
+    space = search_space("fonbw", rec)
+    assert space.bounds[3] == pytest.approx((0.5 - 0.45 * np.log10(4.0), 1.0))
+    assert space.bounds[4] == space.bounds[3]
+    # the user's bounds still win
+    assert search_space("fonbw", rec, bounds={"lam1": (0.1, 0.9)}).bounds[3] == (0.1, 0.9)
+
+
+def test_sigma_is_capped_by_raising_rho():
+    from fonbw.identifiable import SIGMA_MAX
+
+    rec = Record.from_arrays(u=eq19(T=4.0), y=np.sin(eq19(T=4.0) / 30.0), dt=DT)
+    space = search_space("fonbw", rec)
+    # sigma_rho / rho = 1e4 at n = 2 would be σ = 1e8: ρ rises to sigma_rho / sqrt(1e3)
+    x = np.array([[1e-5, 0.1, 2.0, 0.9, 0.8], [0.02, 0.0172, 1.5, 0.9, 0.8]])
+    p = space.basis_params(x)
+    assert p["sigma"][0] == pytest.approx(SIGMA_MAX) and p["rho"][0] == pytest.approx(0.1 / np.sqrt(1e3))
+    assert p["sigma"][1] == pytest.approx((0.0172 / 0.02) ** 1.5) and p["rho"][1] == 0.02  # inside: untouched
+    assert search_space("nbw", rec, reparametrize=False).bounds[1] == (1e-2, SIGMA_MAX)
+
+
+def test_bipolar_single_rate_record_stays_in_identifiable_ranges(bipolar_bench_record):
+    # Unbounded, FONBW on one 1 Hz bipolar record ran to σ = 3.5e8 (ρ = 4e-9) or to the
+    # λ corner; one rate cannot tell the fractional orders from ρ.
+    res = identify(bipolar_bench_record, "fonbw", seed=1, max_evals=600)
+    p, span = res.params, np.ptp(bipolar_bench_record.y)
+    assert res.search["bounds"][3] == (0.5, 1.0) and res.search["bounds"][4] == (0.5, 1.0)
+    assert p["lam1"] >= 0.5 and p["lam2"] >= 0.5, p
+    assert p["sigma"] <= 1e3 * (1 + 1e-9), p
+    assert res.rms < 0.05 * span
