@@ -254,10 +254,12 @@ def invertibility_report(model, dt, states=None, *, dt_states=None, gain_ref=Non
 # ---------------------------------------------------------------------------
 # identification under the constraint
 
-def _gain_ref(recs):
-    """Least-squares slope of y on (1, u) over all records [µm/V]."""
-    u = np.concatenate([r[0] for r in recs])
-    y = np.concatenate([r[1] for r in recs])
+def _gain_ref(recs, burn_in=None):
+    """Least-squares slope of y on (1, u) over the records' scored samples
+    (after each burn-in, whose outputs are not data) [µm/V]."""
+    b = list(burn_in or [0] * len(recs))
+    u = np.concatenate([r[0][k:] for r, k in zip(recs, b)])
+    y = np.concatenate([r[1][k:] for r, k in zip(recs, b)])
     A = np.column_stack([np.ones_like(u), u])
     return float(np.linalg.lstsq(A, y, rcond=None)[0][1])
 
@@ -315,14 +317,14 @@ class ConstrainedProjection:
         if not (math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"for_compensation must be the compensator's step dt > 0 [s], got {dt!r}")
         self.proj, self.dt, self.margin = proj, dt, float(margin)
-        self.gain_ref = _gain_ref(proj.recs)
+        self.burn_in = list(getattr(proj, "burn_in", None) or [0] * len(proj.recs))
+        self.gain_ref = _gain_ref(proj.recs, self.burn_in)
         if not self.gain_ref > 0.0:
             raise ValueError("for_compensation: the records' quasi-static gain y/u is not positive "
                              f"({self.gain_ref:.3g} µm/V); the constraint needs a rising stage")
         self.bound = self.margin * self.gain_ref
         U = max(float(np.max(np.abs(u))) for u, _, _ in proj.recs)
         # the samples that count (after each record's burn-in, as the basis)
-        self.burn_in = list(getattr(proj, "burn_in", None) or [0] * len(proj.recs))
         uu = np.concatenate([u[b:] for (u, _, _), b in zip(proj.recs, self.burn_in)])
         q = getattr(proj, "q", proj.Q.shape[1])
         # d/du of the fixed regressors (u/U)^i; per-record offsets have none
@@ -413,7 +415,7 @@ def annotate_result(result, recs, for_compensation=None, gain_ref=None):
     meta = dict(getattr(model, "meta", None) or {})
     meta["u_range"] = [lo, hi]
     if for_compensation is not None:
-        gain_ref = _gain_ref(recs) if gain_ref is None else gain_ref
+        gain_ref = _gain_ref(recs, getattr(result, "burn_in", None)) if gain_ref is None else gain_ref
         smin = min(float(np.min(one_step_slope(model, for_compensation, u, dt_states=dt)))
                    for u, _, dt in recs)
         inv = {"dt": float(for_compensation), "slope_min": smin, "gain_ref": gain_ref,

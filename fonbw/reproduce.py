@@ -27,7 +27,8 @@ from .signals import TRAJECTORIES, eq19_input, multi_input, sine_input
 from .io import Record, atomic_open, decimate
 
 __all__ = ["identify_models", "table1", "table2", "table3", "reproduce", "KIND_LABELS",
-           "table4", "format_table4", "reproduce_table4", "table4_training", "TABLE4_KINDS"]
+           "table4", "format_table4", "reproduce_table4", "table4_training", "table4_models",
+           "TABLE4_KINDS"]
 
 KIND_LABELS = {"fonbw": "FONBW", "cbw": "CBW", "zhu": "Zhu et al. (eq. 20)", "nbw": "asymmetric NBW"}
 
@@ -353,7 +354,8 @@ def table4(bench, models, dt=None, out_dir=None, *, T=2.0, limits=DEFAULT_LIMITS
                 # non-invertible models are the point of the slope column
                 warnings.simplefilter("ignore", RuntimeWarning)
                 res = compensate(m, Hd, dt, **opts)
-            y = np.asarray(bench.run(res.u), dtype=float)
+            # the preview's pre-actuation drives the bench before t = 0
+            y = np.asarray(bench.run(res.u_full), dtype=float)[res.u_lead.size:]
             traces[tname, mname] = (Hd, y)
             plants = [("bench", y)] + ([("model", res.y_model)] if ideal else [])
             rows += [_table4_row(mname, tname, pname, yp, Hd, res, slopes[mname])
@@ -458,25 +460,55 @@ def reproduce_table4(out_dir=None, *, seed=0, max_evals=3000, T=2.0, models=None
     Identifies every model of ``kinds`` (FONBW, CBW, asymmetric NBW, Zhu) on
     the same pooled records (:func:`table4_training` unless ``records``),
     same seed and budget, unless ``models`` is given, then runs
-    :func:`table4` at the bench's step. With ``for_compensation`` (default)
-    FONBW, NBW and CBW are identified invertible at the bench's step
+    :func:`table4` at the bench's step. The records are scored after a rest
+    cycle (:func:`fonbw.compensate.rest.with_rest_cycle`: the bench is zeroed
+    at rest after a previous cycle, a model simulated from its virgin state
+    is not), and the models record that start (``meta["start"]``), which the
+    compensators then run first. With ``for_compensation`` (default) FONBW,
+    NBW and CBW are identified invertible at the bench's step
     (``identify(..., for_compensation=bench.dt)``), so the causal
     compensator has a root at every sample. With ``out_dir`` also writes the
-    identified models as ``model_<name>.json`` (with ``u_range`` and the
-    invertibility record).
+    identified models as ``model_<name>.json`` (with ``u_range``, the start
+    and the invertibility record). Rows then carry ``rms_train``, the
+    model's fit [µm] on the scored training samples.
     """
     bench = Bench(seed=seed)
+    fits = {}
     if models is None:
-        from .identify import identify
-
-        recs = table4_training(seed) if records is None else records
-        models = {}
-        for name, kind in kinds:
-            fc = bench.dt if (for_compensation and kind != "zhu") else None
-            models[name] = identify(recs, kind, seed=seed, max_evals=max_evals, workers=workers,
-                                    progress=progress, for_compensation=fc).model
+        models, fits = table4_models(bench.dt, seed=seed, max_evals=max_evals, workers=workers,
+                                     progress=progress, for_compensation=for_compensation,
+                                     records=records, kinds=kinds)
     if out_dir is not None:
         os.makedirs(out_dir, exist_ok=True)
         for name, m in models.items():
             m.save(os.path.join(out_dir, f"model_{name.lower()}.json"))
-    return table4(bench, models, bench.dt, out_dir, T=T, limits=None, preview=preview)
+    rows = table4(bench, models, bench.dt, out_dir, T=T, limits=None, preview=preview)
+    for r in rows:
+        r["rms_train"] = fits.get(r["compensator"])
+    return rows
+
+
+def table4_models(dt, *, seed=0, max_evals=3000, workers=None, progress=False,
+                  for_compensation=True, records=None, kinds=TABLE4_KINDS):
+    """Table 4's models, every kind identified on the same records after a rest
+    cycle (and, with ``for_compensation``, invertible at ``dt`` [s] except Zhu).
+
+    Returns ``({name: model}, {name: training RMS [µm]})``.
+    """
+    from .compensate.rest import rest_start_meta, with_rest_cycle
+    from .identify import identify
+
+    recs = table4_training(seed) if records is None else records
+    lo = min(float(np.min(r.u)) for r in recs)
+    hi = max(float(np.max(r.u)) for r in recs)
+    cycled, burn = with_rest_cycle(recs, (lo, hi))
+    models, fits = {}, {}
+    for name, kind in kinds:
+        fc = dt if (for_compensation and kind != "zhu") else None
+        res = identify(cycled, kind, seed=seed, max_evals=max_evals, workers=workers,
+                       progress=progress, for_compensation=fc, burn_in=burn)
+        m = res.model
+        m.meta = {**(getattr(m, "meta", None) or {}), "u_range": [lo, hi],
+                  "start": rest_start_meta((lo, hi))}
+        models[name], fits[name] = m, float(res.rms)
+    return models, fits

@@ -144,6 +144,17 @@ def _hd(Hd):
     return as_signal(Hd, "desired displacement Hd [µm]")
 
 
+def _history(model, dt, history, form="discrete"):
+    """The voltage [V] run before t = 0 (:func:`fonbw.compensate.rest.history_input`);
+    none for the Zhu model, whose x0 is its zero already."""
+    from .rest import history_input
+    if isinstance(model, _hy.Zhu2016) or form == "eq22":
+        if history is not None and len(history):
+            raise ValueError("history is not defined for the Zhu2016 model")
+        return np.zeros(0)
+    return history_input(model, dt, history)
+
+
 # ---------------------------------------------------------------------------
 # public API
 
@@ -175,7 +186,18 @@ class CompensationResult:
         Whether the one-step-delayed variant was used.
     form : str
         "discrete" or "eq22" (see :func:`compensate`).
+    history : ndarray
+        Voltage [V] the model ran through before t = 0 (its rest cycle, or
+        none); ``y_model`` counts from the model's output at its end.
+    u_lead : ndarray
+        Preview only: the pre-actuation [V] applied just before t = 0 (after
+        the history). The actuator must be driven with ``u_full``.
     """
+
+    @property
+    def u_full(self) -> np.ndarray:
+        """The voltage to apply [V]: the preview's pre-actuation, then u."""
+        return np.concatenate([self.u_lead, self.u])
 
     u: np.ndarray
     y_model: np.ndarray
@@ -188,6 +210,8 @@ class CompensationResult:
     explicit: bool = False
     form: str = "discrete"
     preview: bool = False
+    history: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0), repr=False)
+    u_lead: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0), repr=False)
 
     def __array__(self, dtype=None, copy=None):
         return self.u if dtype is None else self.u.astype(dtype)
@@ -267,7 +291,8 @@ class CompensationResult:
 
 
 def compensate(model, Hd, dt, *, limits=None, explicit=False, tol=DEFAULT_TOL,
-               max_iter=_MAX_ITER, form="discrete", preview=False, check=True) -> CompensationResult:
+               max_iter=_MAX_ITER, form="discrete", preview=False, check=True,
+               history=None, lead=None) -> CompensationResult:
     """Feedforward voltage for a desired displacement, from rest (eqs. 16–17, 21, 22).
 
     Parameters
@@ -306,6 +331,14 @@ def compensate(model, Hd, dt, *, limits=None, explicit=False, tol=DEFAULT_TOL,
     check : bool
         Causal only: warn (RuntimeWarning) when the model is not invertible
         at ``dt`` (:func:`fonbw.invertibility.check_invertible`).
+    history : array_like, optional
+        Voltage [V] the model runs through before t = 0, its output counted
+        from the end of it (a sensor zeroed there). Default: the model's own
+        start (:func:`fonbw.compensate.rest.start_history`: its rest cycle
+        when it was identified after one, else from rest); ``()``: from rest.
+    lead : int, optional
+        Preview only: samples of pre-actuation before t = 0
+        (:func:`fonbw.compensate.preview.compensate_preview`).
 
     Returns
     -------
@@ -319,7 +352,7 @@ def compensate(model, Hd, dt, *, limits=None, explicit=False, tol=DEFAULT_TOL,
         if explicit or form != "discrete":
             raise ValueError("preview=True inverts the discrete model as a whole: "
                              "explicit and form do not apply")
-        return compensate_preview(model, Hd, dt, limits=limits,
+        return compensate_preview(model, Hd, dt, limits=limits, history=history, lead=lead,
                                   tol=1e-9 if tol == DEFAULT_TOL else tol)
     Hd = _hd(Hd)
     dt = _hy._dt(dt)
@@ -330,22 +363,24 @@ def compensate(model, Hd, dt, *, limits=None, explicit=False, tol=DEFAULT_TOL,
     max_iter = _max_iter(max_iter)
     ku, kh = _explicit_coeffs(model, explicit)
     form = _form(model, form)
+    pre = _history(model, dt, history, form)
     n = len(Hd)
     target = Hd
     if form == "eq22" and n:
         h1 = np.concatenate([Hd[:1], Hd[:-1]])
         h2 = np.concatenate([Hd[:1], Hd[:1], Hd[:-2]])[:n]
         target = np.ascontiguousarray(_force_target(model, Hd, h1, h2, dt))
-    P, ss = model._pack(dt, n_steps=max(n, 1))
+    P, ss = model._pack(dt, n_steps=max(n + pre.size, 1))
     u = np.empty(n)
     y = np.empty(n)
     status = np.empty(n, dtype=np.int8)
     nfev = np.empty(n, dtype=np.int64)
     if n:
         _entries(model, form)[0](target, P, ss, lo, hi, tol, int(max_iter), bool(explicit), ku, kh,
-             u, y, status, nfev)
+                                 pre, u, y, status, nfev)
     return CompensationResult(u=u, y_model=y, Hd=Hd, dt=dt, status=status, nfev=nfev,
-                              limits=(lo, hi), tol=tol, explicit=bool(explicit), form=form)
+                              limits=(lo, hi), tol=tol, explicit=bool(explicit), form=form,
+                              history=pre)
 
 
 class Compensator:
@@ -358,9 +393,9 @@ class Compensator:
 
     Parameters
     ----------
-    model, dt, limits, explicit, tol, max_iter, form, check
+    model, dt, limits, explicit, tol, max_iter, form, check, history
         As for :func:`compensate` (the invertibility warning is given once,
-        at construction).
+        at construction; the history is run at every reset).
 
     Attributes
     ----------
@@ -373,10 +408,10 @@ class Compensator:
         Counts since the last reset.
     """
 
-    _NCTL = 9  # steps, u_prev, slope, n_sat, n_fail, status, y_model, H_d(k-1), H_d(k-2)
+    _NCTL = 10  # steps, u_prev, slope, n_sat, n_fail, status, y_model, H_d(k-1), H_d(k-2), zero
 
     def __init__(self, model, dt, *, limits=None, explicit=False, tol=DEFAULT_TOL,
-                 max_iter=_MAX_ITER, form="discrete", check=True):
+                 max_iter=_MAX_ITER, form="discrete", check=True, history=None):
         check_model(model)
         self.model = model
         self.dt = _hy._dt(dt)
@@ -388,6 +423,7 @@ class Compensator:
         self.explicit = bool(explicit)
         self._ku, self._kh = _explicit_coeffs(model, explicit)
         self.form = _form(model, form)
+        self.history = _history(model, self.dt, history, self.form)
         self._entry = _entries(model, self.form)[1]
         self._out = np.zeros(4)
         self.reset()
@@ -398,7 +434,12 @@ class Compensator:
         # exact engine's window); the compiled step solves on them.
         self._st = self.model.stepper(self.dt)
         self._growable = any(op.growable for op in getattr(self._st, "ops", ()))
-        self._ctl = np.array([min(max(0.0, self.limits[0]), self.limits[1]), math.nan])
+        # the history (rest cycle) first; outputs count from its end
+        self._y0 = 0.0
+        for uh in self.history:
+            self._y0 = self._st.step(uh)
+        u_rest = self.history[-1] if self.history.size else min(max(0.0, self.limits[0]), self.limits[1])
+        self._ctl = np.array([u_rest, math.nan])
         self.steps = 0
         self.n_saturated = 0
         self.n_not_converged = 0
@@ -421,14 +462,14 @@ class Compensator:
             hd = target
         # solve and commit in one compiled call, except when the exact
         # engine's window may have to grow first: the model stepper commits then
-        self._entry(hd, st.P, st.S, lo, hi, self.tol, self.max_iter, self.explicit, self._ku,
-                    self._kh, self._ctl, out, not self._growable)
+        self._entry(hd + self._y0, st.P, st.S, lo, hi, self.tol, self.max_iter, self.explicit,
+                    self._ku, self._kh, self._ctl, out, not self._growable)
         u = float(out[0])
         if self._growable:
-            self.y_model = st.step(u)
+            self.y_model = st.step(u) - self._y0
             self._ctl[0] = u
         else:
-            self.y_model = float(out[3])
+            self.y_model = float(out[3]) - self._y0
             st._steps += 1  # keep the stepper's own count true (its state is ours)
         self.status = int(out[1])
         self.steps += 1
@@ -441,7 +482,7 @@ class Compensator:
     def get_state(self) -> np.ndarray:
         head = [float(self.steps), self._ctl[0], self._ctl[1], float(self.n_saturated),
                 float(self.n_not_converged), float(self.status), float(self.y_model),
-                self._hd1, self._hd2]
+                self._hd1, self._hd2, self._y0]
         return np.concatenate([head, self._st.get_state()])
 
     def set_state(self, state) -> None:
@@ -453,14 +494,14 @@ class Compensator:
         self._ctl = np.array([s[1], s[2]])
         self.n_saturated, self.n_not_converged, self.status = int(s[3]), int(s[4]), int(s[5])
         self.y_model = float(s[6])
-        self._hd1, self._hd2 = float(s[7]), float(s[8])
+        self._hd1, self._hd2, self._y0 = float(s[7]), float(s[8]), float(s[9])
 
 
 def compensator(model, dt, *, limits=None, explicit=False, tol=DEFAULT_TOL,
-                max_iter=_MAX_ITER, form="discrete", check=True) -> Compensator:
+                max_iter=_MAX_ITER, form="discrete", check=True, history=None) -> Compensator:
     """Per-sample compensator (for FMUs and loops); see :class:`Compensator`."""
     return Compensator(model, dt, limits=limits, explicit=explicit, tol=tol, max_iter=max_iter,
-                       form=form, check=check)
+                       form=form, check=check, history=history)
 
 
 def compensate_file(model_path, traj_path, out_path, *, limits=None, explicit=False,

@@ -185,20 +185,28 @@ def _one(core, V, S, hd, lo, hi, tol, maxit, explicit, ku, kh, ctl):
     if explicit:
         u, st = _explicit(S, hd, lo, hi, ctl[0], ku, kh)
         return u, st, 0
-    u, f, st, n, s = _solve(core, V, hd, lo, hi, ctl[0], ctl[1], tol, maxit)
+    # half the tolerance: the output is reported relative to the zero of a
+    # history (H − y0), whose rounding must not take it past tol
+    u, f, st, n, s = _solve(core, V, hd, lo, hi, ctl[0], ctl[1], 0.5 * tol, maxit)
     ctl[1] = s
     return u, st, n
 
 
 @nb.njit(cache=True, inline="always")
-def _run_on(views, core, hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh, u, y, status, nfev):
-    """Batch compensation from rest (the model's state starts at rest)."""
+def _run_on(views, core, hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh, pre, u, y, status, nfev):
+    """Batch compensation from rest, after the voltage history `pre` (the
+    model runs through it first; outputs are counted from its last one, as a
+    sensor zeroed there)."""
     S = np.zeros(ssize)
     V = views(P, S)
-    ctl = np.array([min(max(0.0, lo), hi), math.nan])
+    y0 = 0.0
+    for k in range(pre.shape[0]):
+        y0 = core(pre[k], True, V)
+    u_rest = pre[pre.shape[0] - 1] if pre.shape[0] else min(max(0.0, lo), hi)
+    ctl = np.array([u_rest, math.nan])
     for k in range(hd.shape[0]):
-        uk, st, n = _one(core, V, S, hd[k], lo, hi, tol, maxit, explicit, ku, kh, ctl)
-        y[k] = core(uk, True, V)
+        uk, st, n = _one(core, V, S, hd[k] + y0, lo, hi, tol, maxit, explicit, ku, kh, ctl)
+        y[k] = core(uk, True, V) - y0
         u[k] = uk
         status[k] = st
         nfev[k] = n
@@ -226,21 +234,21 @@ def _step_on(views, core, hd, P, S, lo, hi, tol, maxit, explicit, ku, kh, ctl, o
 # folder is named by a hash of every source file (fonbw._numba_cache_dir), so
 # an edit of the hysteresis or fractional kernels cannot leave these stale.
 @nb.njit(cache=True)
-def _run_fonbw(hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh, u, y, status, nfev):
+def _run_fonbw(hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh, pre, u, y, status, nfev):
     _run_on(_hy.fonbw_views, _hy.fonbw_core, hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh,
-            u, y, status, nfev)
+            pre, u, y, status, nfev)
 
 
 @nb.njit(cache=True)
-def _run_cbw(hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh, u, y, status, nfev):
+def _run_cbw(hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh, pre, u, y, status, nfev):
     _run_on(_hy.plain_views, _hy.cbw_core, hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh,
-            u, y, status, nfev)
+            pre, u, y, status, nfev)
 
 
 @nb.njit(cache=True)
-def _run_zhu(hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh, u, y, status, nfev):
+def _run_zhu(hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh, pre, u, y, status, nfev):
     _run_on(_hy.plain_views, _hy.zhu_core, hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh,
-            u, y, status, nfev)
+            pre, u, y, status, nfev)
 
 
 @nb.njit(cache=True)
@@ -279,9 +287,9 @@ def _zhu_force_core(u, commit, V):
 # not cached: numba refuses to cache a function that passes another function
 # of this module as a value ("dynamic globals"); compiled on first use.
 @nb.njit(cache=False)
-def _run_zhu22(hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh, u, y, status, nfev):
+def _run_zhu22(hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh, pre, u, y, status, nfev):
     _run_on(_hy.plain_views, _zhu_force_core, hd, P, ssize, lo, hi, tol, maxit, explicit, ku, kh,
-            u, y, status, nfev)
+            pre, u, y, status, nfev)
 
 
 @nb.njit(cache=False)

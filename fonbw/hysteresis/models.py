@@ -87,8 +87,9 @@ def _dt(dt):
 
 #: Optional top-level fields of a model's JSON besides kind, params and units:
 #: "u_range" ([u_min, u_max] of the training input [V]) and "invertibility"
-#: ({"dt": [s], "slope_min": [µm/V], "margin": …}, see fonbw.invertibility).
-META_KEYS = ("u_range", "invertibility")
+#: ({"dt": [s], "slope_min": [µm/V], "margin": …}, see fonbw.invertibility) and
+#: "start" (the rest cycle the model was identified after, see fonbw.compensate.rest).
+META_KEYS = ("u_range", "invertibility", "start")
 
 
 class _Model:
