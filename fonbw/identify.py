@@ -542,6 +542,9 @@ def _identify_result(proj, res, wall, records, check=True):
     else:
         rms = float(rms_cost(kind, theta[None, :], records, memory=memory, N=Nsim)[0])
     intervals, warns = parameter_check(base, x) if check else ({}, [])
+    if check and params.get("sigma", 0.0) >= SIGMA_MAX * (1 - 1e-9) and space.project is not None:
+        warns.append(f"sigma = {params['sigma']:.4g} is at its cap {SIGMA_MAX:g}: the data push it "
+                     "higher, where it no longer changes the loop measurably (rho was raised to keep it there)")
     return IdentifyResult(model=model, kind=kind, params=params, rms=rms,
                           nfev=res.nfev, wall_time=wall, history=res.history,
                           success=res.success, message=res.message,
