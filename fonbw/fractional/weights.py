@@ -110,18 +110,21 @@ def tail_modes(lam: float, K: int = FAST_K, M: int = FAST_M):
     s_lo = 1e-9
     x = np.linspace(math.log(s_lo), math.log(s_hi), M)
     hx = x[1] - x[0] if M > 1 else math.log(s_hi / s_lo)
-    s = np.exp(x)
+    # libm per node, not numpy's vectorized exp/log/expm1: those differ from
+    # libm in the last bit on some CPUs, and the native FMUs (C, libm) build the
+    # same modes and must match the library bit for bit on every machine.
+    s = np.array([math.exp(v) for v in x])
     # (e^s - 1)^λ e^{-s(K)} computed in logs: e^s overflows for large s only in
     # principle, but expm1 keeps the small-s end accurate.
-    logf = lam * np.log(np.expm1(s)) - s * K
-    q = -(math.sin(math.pi * lam) / math.pi) * hx * s * np.exp(logf)
+    logf = lam * np.array([math.log(math.expm1(v)) for v in s]) - s * K
+    q = -(math.sin(math.pi * lam) / math.pi) * hx * s * np.array([math.exp(v) for v in logf])
     # The trapezoid nodes below s_lo, continued to -∞: there (e^s − 1)^λ ≈ s^λ
     # and e^{-s j} ≈ e^{-s_lo j} for every lag j ≪ 1/s_lo, so they sum to a
     # geometric series carried by the lowest node. Dropping it costs about
     # j·s_lo^(1+λ) per lag: 4e-8 of E1 over 1e5 lags at λ = 0.3.
     g = math.exp(-hx * (1.0 + lam))
     q[0] += -(math.sin(math.pi * lam) / math.pi) * hx * s_lo ** (1.0 + lam) * g / (1.0 - g)
-    return q, np.exp(-s)
+    return q, np.array([math.exp(-v) for v in s])
 
 
 def tail_error(lam: float, K: int = FAST_K, M: int = FAST_M, horizon: int = E1_HORIZON) -> float:
