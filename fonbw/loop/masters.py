@@ -7,7 +7,12 @@ both. ``"libcosim"`` hands the FMUs (the controller too, as the FonbwPID FMU)
 to libcosim's own fixed-step algorithm, an independent implementation of the
 same convention. The FMUs are the pythonfmu ones or, with ``native``, the C
 ones of :mod:`fonbw.fmu.native` (FonbwPIDNative as libcosim's controller):
-the masters take whatever :func:`fonbw.loop.fmus.build_fmus` built.
+the masters take whatever :func:`fonbw.loop.fmus.build_fmus` built. The
+libcosim run is one call into libcosim with no Python per step: the
+exogenous inputs are played by FonbwSignalNative FMUs, the outputs recorded
+by its time-series observer, and its execution has no worker thread
+(:mod:`fonbw.loop.lc_threads`; the thread hand-off per step was most of its
+cost at 10 kHz).
 
 Every master returns a :class:`Stepped`.
 
@@ -169,15 +174,18 @@ def _libcosim_setup(w, cfg, dt, signal, table_dir):
     (its samples written to a file in `table_dir`), connected like any
     output: after k steps it gives sample k, which is what the block reads
     in step k. Without `signal` (None) the inputs are listed for an override
-    manipulator instead. Returns (execution, observer, manipulator or None,
-    [(slave, reference, exogenous sequence)] for the manipulator,
-    [(block, slave, output reference)])."""
+    manipulator instead. The execution is created with no worker thread
+    where possible (:func:`fonbw.loop.lc_threads.single_thread`). Returns
+    (execution, observer, manipulator or None, [(slave, reference,
+    exogenous sequence)] for the manipulator, [(block, slave, output
+    reference)], the thread report of ``single_thread``)."""
     from libcosimpy.CosimEnums import CosimVariableType
     from libcosimpy.CosimExecution import CosimExecution
     from libcosimpy.CosimManipulator import CosimManipulator
     from libcosimpy.CosimObserver import CosimObserver
 
-    ex = CosimExecution.from_step_size(round(dt * 1e9))
+    with lc_threads.single_thread() as threads:  # the pool is made with the execution
+        ex = CosimExecution.from_step_size(round(dt * 1e9))
     idx, vr = {}, {}
     for b in w.blocks:
         idx[b] = _add_slave(ex, cfg["fmus"][b], b)
@@ -212,7 +220,7 @@ def _libcosim_setup(w, cfg, dt, signal, table_dir):
     outs = [(b, idx[b], vr[b][IO[b][1]]) for b in w.blocks]
     for _, i, ref in outs:
         obs.start_time_series(i, ref, CosimVariableType.REAL)
-    return ex, obs, man, ext_in, outs
+    return ex, obs, man, ext_in, outs, threads
 
 
 def _samples(obs, outs, n):
@@ -270,8 +278,7 @@ def _run_libcosim(w, cfg, n, rest, dt) -> Stepped:
     t_setup = time.perf_counter()
     signal = _signal_fmu()
     with tempfile.TemporaryDirectory(prefix="fonbw_lc_") as tables:
-        with lc_threads.single_thread() as threads:
-            ex, obs, man, ext_in, outs = _libcosim_setup(w, cfg, dt, signal, tables)
+        ex, obs, man, ext_in, outs, threads = _libcosim_setup(w, cfg, dt, signal, tables)
         setup = time.perf_counter() - t_setup
         init, wall, cpu, ok = _step_libcosim(ex, man, ext_in, n)
         rec = _samples(obs, outs, n)
