@@ -5,9 +5,10 @@ of ``std::thread::hardware_concurrency() - 1`` workers and waits for them
 each step; with no worker the steps run on the calling thread. Its C++ API
 takes a worker count, its C API (the one libcosimpy wraps) does not. For a
 loop of four small FMUs at 10 kHz the hand-off is nearly all of the cost:
-measured on a 2-CPU machine, ``ex.step`` of 10 000 steps took 25-46 µs per
-step with one native slave (8 µs with every thread pinned to one CPU) and
-0.9 µs with no worker; with four slaves 25 µs (20 µs pinned) and 1.8 µs.
+measured on a 2-CPU machine, 10 000 steps in one call took 25-46 µs per step
+with one native slave (8 µs with every thread pinned to one CPU) and 0.9 µs
+with no worker; with four slaves 25 µs (20 µs pinned) and 1.8 µs
+(``benchmarks/bench_native_loop.py`` measures it again).
 
 :func:`single_thread` makes the executions created inside it have no worker
 thread: a small shared library, compiled on first use, defines
