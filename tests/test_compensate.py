@@ -280,3 +280,27 @@ def test_paper_table1_fonbw_is_not_invertible_and_says_so():
     assert np.count_nonzero(bad) > 0.9 * len(res.u)
     assert np.all(np.abs(res.residual[bad]) > res.tol)
     assert np.all(np.abs(res.residual[~bad]) <= res.tol)
+
+
+def test_preview_file_starts_ahead_of_the_trajectory(tmp_path):
+    # the pre-actuation rows come first, before the trajectory's first time,
+    # with status -1; the model driven by the whole u column reproduces y_model
+    m = fonbw.FONBW(**TABLE1_FONBW)
+    m.meta = {"u_range": [-100.0, 200.0]}
+    mp, tp, op = tmp_path / "m.json", tmp_path / "traj.csv", tmp_path / "u.csv"
+    m.save(mp)
+    write_csv(tp, {"t": t[:1000], "Hd": TRAJ["5hz"][:1000]})
+    res = C.compensate_file(mp, tp, op, preview=True)
+    out = read_record(op, need=("u", "Hd"))
+    k = res.u_lead.size
+    assert k > 0 and len(out.u) == k + 1000
+    assert np.all(out.t[:k] < t[0]) and np.allclose(out.t[k:], t[:1000], atol=1e-12)
+    import csv
+    with open(op) as fh:
+        rows = list(csv.DictReader(fh))
+    status = np.array([float(r["status"]) for r in rows])
+    y_col = np.array([float(r["y_model"]) for r in rows])
+    assert np.all(status[:k] == -1) and np.all(status[k:] == C.OK)
+    y = m.simulate(out.u, DT)
+    assert np.max(np.abs(y - y_col)) <= 1e-9
+    assert np.max(np.abs(y[k:] - TRAJ["5hz"][:1000])) <= 1e-8

@@ -4,7 +4,11 @@ Reads TRAJ.csv (columns t [s] and Hd [µm]), inverts the model sample by
 sample (eqs. (16)-(17): the input u [V] whose model output is Hd) and writes
 U.csv with columns t [s], u [V], Hd [µm], y_model [µm] (the model's output
 for that u) and a per-sample status (0 solved, 1 at u_min, 2 at u_max, 3 not
-converged).
+converged). With --preview the voltage starts ahead of the trajectory: those
+pre-actuation rows come first, at times before the first of TRAJ.csv, with
+status -1. A model identified after a rest cycle (its JSON's "start") is run
+through that cycle first and its output counted from the end of it, as the
+stage's sensor is zeroed at rest.
 """
 from __future__ import annotations
 
@@ -27,7 +31,8 @@ def add_arguments(p) -> None:
                    help="one-step-delayed variant instead of the per-step implicit solve")
     p.add_argument("--preview", action="store_true",
                    help="invert the whole known trajectory at once (non-causal, stable for any identified "
-                        "model, invertible or not); without it the causal per-step inverse that an FMU "
+                        "model, invertible or not; the voltage starts ahead of the trajectory, rows with "
+                        "negative status); without it the causal per-step inverse that an FMU "
                         "or a real-time loop runs")
     add_record_arguments(p, offset=False, y=True)
 
@@ -36,6 +41,7 @@ def run(ns) -> None:
     import warnings
 
     from ..compensate import compensate, default_limits
+    from ..compensate.causal import output_columns
     from ..io import write_csv
 
     model = load_model(ns.model)
@@ -50,8 +56,7 @@ def run(ns) -> None:
         res = compensate(model, rec.hd, rec.dt, limits=(lo, hi), explicit=ns.explicit, preview=ns.preview)
     for w in caught:
         print(f"fonbw compensate: warning: {' '.join(str(w.message).split())}", file=sys.stderr)
-    write_csv(out_path(ns.output), {"t": rec.t, "u": res.u, "Hd": res.Hd, "y_model": res.y_model,
-                                    "status": res.status.astype(float)})
+    write_csv(out_path(ns.output), output_columns(model, res, rec.t))
     c = res.counts
     print(f"wrote {ns.output}: {len(res.u)} samples, u in [{res.u.min():.4g}, {res.u.max():.4g}] V "
           f"(limits {lo:g}..{hi:g} V); {c['saturated_low']} sample(s) at u_min, {c['saturated_high']} at u_max, "

@@ -23,6 +23,7 @@ __all__ = [
     "Compensator",
     "CompensationResult",
     "compensate_file",
+    "output_columns",
     "default_limits",
     "OK",
     "SAT_LOW",
@@ -519,6 +520,27 @@ def compensate_file(model_path, traj_path, out_path, *, limits=None, explicit=Fa
     rec = read_record(traj_path, need=("Hd",))
     res = compensate(model, rec.hd, rec.dt, limits=limits, explicit=explicit, tol=tol, form=form,
                      preview=preview)
-    write_csv(out_path, {"t": rec.t, "u": res.u, "Hd": res.Hd, "y_model": res.y_model,
-                         "status": res.status.astype(float)})
+    write_csv(out_path, output_columns(model, res, rec.t))
     return res
+
+
+#: Status written for the preview's pre-actuation rows (before t = 0 of H_d).
+LEAD = -1
+
+
+def output_columns(model, res, t):
+    """Columns t [s], u [V], Hd [µm], y_model [µm], status of a compensation's
+    output file. A preview's pre-actuation comes first, on times before the
+    trajectory's first (status ``LEAD``), with the model's output there."""
+    cols = {"t": np.asarray(t, float), "u": res.u, "Hd": res.Hd, "y_model": res.y_model,
+            "status": res.status.astype(float)}
+    k = res.u_lead.size
+    if not k:
+        return cols
+    full = np.concatenate([res.history, res.u_full])
+    y = model.simulate(full, res.dt)
+    y0 = y[res.history.size - 1] if res.history.size else 0.0
+    lead = {"t": cols["t"][0] - res.dt * np.arange(k, 0, -1), "u": res.u_lead,
+            "Hd": np.full(k, res.Hd[0]), "y_model": y[res.history.size:res.history.size + k] - y0,
+            "status": np.full(k, float(LEAD))}
+    return {c: np.concatenate([lead[c], cols[c]]) for c in cols}

@@ -37,6 +37,18 @@ def default_truth(model=None):
     return FONBW(**p)
 
 
+def _from_rest(model):
+    """The model without its recorded rest cycle: the loop's true actuator is
+    simulated from rest, so the compensator's model must start there too."""
+    meta = dict(getattr(model, "meta", None) or {})
+    if "start" not in meta:
+        return model
+    meta.pop("start")
+    m = type(model)(**model.params)
+    m.meta = meta
+    return m
+
+
 def _row(traj, pl, mode, res):
     return {"trajectory": traj, "plant": pl, "mode": mode,
             "rms_error_um": res.rms_error, "max_error_um": res.max_error,
@@ -64,7 +76,10 @@ def ff_fb_study(out_dir=None, master="reference", trajectories=("sine5", "multi"
         Duration of each run [s].
     model : FONBW or path, optional
         The identified model the compensator inverts (default: the
-        package's default model).
+        package's default model); e.g. Table 4's FONBW
+        (:func:`fonbw.reproduce.table4_models`), identified with CBW and NBW
+        on the same records. Its rest cycle, if any, is left out: the true
+        actuator starts from rest.
     truth : FONBW, "default" or None
         True actuator; "default": :func:`default_truth`; None: the model
         itself (feedforward then only meets the plant's dynamics and creep).
@@ -77,7 +92,7 @@ def ff_fb_study(out_dir=None, master="reference", trajectories=("sine5", "multi"
         comp_saturated (compensator samples at a voltage limit, reference
         master), error.
     """
-    model = as_model(model, "model")
+    model = _from_rest(as_model(model, "model"))
     tr_model = default_truth(model) if isinstance(truth, str) and truth == "default" else (
         model if truth is None else as_model(truth, "truth"))
     rows, traces = [], {}
