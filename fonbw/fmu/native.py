@@ -440,6 +440,13 @@ def build_native_one(kind: str, res: dict, out_dir, platforms=None, pass_through
     if missing or not platforms:
         raise NativeBuildError(f"no compiler for {', '.join(missing) or 'any platform'} "
                                f"(need {', '.join(PLATFORMS[p][0] for p in missing or PLATFORMS)})")
+    start = (res.get("model") or {}).get("start") or {}
+    if kind == "compensator" and "rest_cycle" in start:
+        import warnings
+
+        warnings.warn("the model records a rest cycle before t = 0 (meta 'start'); the library's "
+                      "compensator runs it first and counts its output from the end of it, the native "
+                      "compensator starts from rest: their outputs differ", RuntimeWarning, stacklevel=2)
     mid = _name(kind, pass_through)
     guid = _guid(kind, res, pass_through)
     out_dir = Path(out_dir)

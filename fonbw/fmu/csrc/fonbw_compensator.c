@@ -136,7 +136,9 @@ void comp_reset(Compensator *c) {
 
 int comp_init(Compensator *c, const FonbwParams *p, double dt, double lo, double hi) {
     if (fonbw_init(&c->m, p, dt) != 0) return -1;
-    c->lo = lo; c->hi = hi; c->tol = 1e-10; c->maxit = 100;
+    /* the library's default tolerance 1e-10, halved in its solve (its output is counted
+     * from the zero of a start history, whose rounding must stay within 1e-10) */
+    c->lo = lo; c->hi = hi; c->tol = 0.5 * 1e-10; c->maxit = 100;
     comp_reset(c);
     return 0;
 }
