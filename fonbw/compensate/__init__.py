@@ -63,7 +63,8 @@ Invertibility
     (``fonbw.identify(..., for_compensation=dt)``), or, for a trajectory
     known ahead, the non-causal stable inversion ``compensate(...,
     preview=True)`` (:mod:`fonbw.compensate.preview`), which gives a bounded,
-    smooth voltage for any model.
+    smooth voltage for any model; it starts the voltage ahead of the
+    trajectory (``CompensationResult.u_lead``, drive with ``u_full``).
 
 Explicit (one-step-delayed) variant
     ``explicit=True`` evaluates G with the previous voltage and the previous
@@ -71,6 +72,16 @@ Explicit (one-step-delayed) variant
     (CBW: u_k = (H_d,k − k_b D h_(k−1))/k_a), which is how a block diagram
     with a unit delay in the loop of Fig. 5 would run. It tracks less well;
     offered for comparison only. Not defined for Zhu2016 (see above).
+
+Start
+    A compensation runs from the model's recorded start: a model identified
+    after a rest cycle (``meta["start"]``, :mod:`fonbw.compensate.rest`) is
+    run through that cycle before t = 0 and its output is counted from the
+    end of it, as a stage's sensor is zeroed at rest after a previous cycle.
+    From its virgin state instead, an identified FONBW's descending branch
+    stays above that zero at the lowest voltage, and the bottom of a
+    trajectory that returns to 0 µm is out of reach (``history=()`` runs
+    from the virgin state).
 
 Voltage limits default to the model's training input range (stored at
 identification as ``u_range``), else the paper's amplifier range 0–120 V. A sample
