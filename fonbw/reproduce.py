@@ -419,18 +419,23 @@ def _write_table4(out_dir, rows, traces, t, tnames, mnames):
 
 
 def format_table4(rows, paper=True) -> str:
-    """Plain-text Table 4 (bench rows; with the paper's numbers beside them)."""
+    """Plain-text Table 4 (bench rows; with the paper's numbers beside them): RMS
+    tracking error, RMS input, saturated and rootless samples, the smallest
+    one-step slope, RMS step change of u, max |model ∘ compensator − H_d| and,
+    when the models were identified here, their training RMS."""
     ref = {(c, tr): (e, u) for c, tr, e, u in PAPER_TABLE4}
     lines = [f"{'compensator':<12} {'trajectory':<12} {'RMS error':>10} {'RMS input':>10} "
-             f"{'saturated':>9} {'no root':>7} {'slope_min':>10} {'RMS du':>8}"
-             + ("   paper: error, input" if paper else "")]
+             f"{'saturated':>9} {'no root':>7} {'slope_min':>10} {'RMS du':>8} {'model∘comp':>10} "
+             f"{'fit RMS':>9}" + ("   paper: error, input" if paper else "")]
     for r in rows:
         if r["plant"] != "bench":
             continue
         sl = r.get("slope_min")
         line = (f"{r['compensator']:<12} {r['trajectory']:<12} {r['rms_error']:>7.3f} µm "
                 f"{r['rms_input']:>8.2f} V {r['saturated']:>9d} {r['not_converged']:>7d} "
-                f"{('%.3g' % sl) if sl is not None else '-':>10} {r.get('rms_du', math.nan):>6.3f} V")
+                f"{('%.3g' % sl) if sl is not None else '-':>10} {r.get('rms_du', math.nan):>6.3f} V "
+                f"{r.get('max_model_error', math.nan):>7.2g} µm "
+                f"{('%6.3f µm' % r['rms_train']) if r.get('rms_train') is not None else '-':>9}")
         if paper and (r["compensator"], r["trajectory"]) in ref:
             e, u = ref[r["compensator"], r["trajectory"]]
             line += f"   {e:.2f} µm, {u:.2f} V"
