@@ -53,6 +53,7 @@ class FonbwCore:
         self.n_base = N + 1
         self.bounds = [tuple(b) for b in space.bounds]
         self.log_scale = list(space.log_scale)
+        self._powers = {}
 
     def theta(self, X):
         """Natural basis parameter rows (P, d) of search rows X (P, nx)."""
@@ -77,10 +78,22 @@ class FonbwCore:
         if transformed:
             S = hyst.simulate_population(KIND, theta, np.ascontiguousarray(Us, dtype=float), rec.dt,
                                          memory=self.memory, N=self.N)
+            F = [self.space.fixed_columns(Us[j]).T for j in range(len(Us))]
         else:
             S = hyst.simulate_population(KIND, theta, rec.u, rec.dt, memory=self.memory, N=self.N)
+            # the record's own input: its powers once per record
+            F = [self.powers(rec)] * len(Us)
         S = np.atleast_2d(S)
-        return [np.vstack([self.space.fixed_columns(Us[j]).T, S[j][None, :]]) for j in range(len(Us))]
+        return [np.vstack([F[j], S[j][None, :]]) for j in range(len(Us))]
+
+    def powers(self, rec):
+        """(u/U)^1..N of a record's own input, (N, n) (a transposed view, as the
+        fitter has always stacked it), built once per record."""
+        key = (id(rec.u), len(rec.u))
+        if key not in self._powers:
+            # the cache keeps the input alive, so its id stays unique
+            self._powers[key] = (rec.u, self.space.fixed_columns(rec.u).T)
+        return self._powers[key][1]
 
 
 class ReferenceCore:

@@ -35,6 +35,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from .. import plant as _plant
+from .blas import single_thread
 
 __all__ = ["Effect", "Creep", "Dynamics", "Amplifier", "Delay", "Drift", "Saturation", "Clip",
            "library", "EFFECTS"]
@@ -206,7 +207,11 @@ class Dynamics(Effect):
     @staticmethod
     @functools.lru_cache(maxsize=4096)
     def _coeffs(f, zeta, dt):
-        sysd = ct.c2d(_plant.mechanics(f, zeta), dt, method="foh")
+        # one BLAS thread: a 4 x 4 matrix exponential does not split its
+        # work (the same numbers), and waking a second thread on a busy
+        # machine cost 100 times the exponential itself (fonbw.gap.blas)
+        with single_thread():
+            sysd = ct.c2d(_plant.mechanics(f, zeta), dt, method="foh")
         num = np.atleast_1d(np.squeeze(sysd.num[0][0]))
         den = np.atleast_1d(np.squeeze(sysd.den[0][0]))
         # lfilter reads coefficients of z^0, z^-1, ...: align the degrees

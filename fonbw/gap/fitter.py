@@ -12,6 +12,7 @@ or locally (a gradient polish in a box around a start).
 """
 from __future__ import annotations
 
+import collections
 import math
 
 import numpy as np
@@ -75,6 +76,10 @@ class Fitter:
         # y: the samples every fit and score uses
         self.y = self.y_all if self.keep is None else self.y_all[self.keep]
         self.nx = self.core.nx
+        self._sims, self._sim_bytes, self._fixed = collections.OrderedDict(), 0, collections.OrderedDict()
+
+    #: Bytes of simulated base columns kept between evaluations.
+    cache_bytes = 256 * 2**20
 
     def rows(self, A):
         """The rows of a design matrix over all samples that the fits use."""
@@ -89,6 +94,15 @@ class Fitter:
         output of each record (creep's driving signal). Column order:
         (u/U)^1..N, ħ, then each effect's additive regressors.
         """
+        return list(self.designs(records, X, effects, TH, yrefs))
+
+    def designs(self, records, X, effects, TH, yrefs):
+        """The matrices of :meth:`design`, built one row at a time (a generator).
+
+        A caller that needs one row at a time holds one matrix, not P. The
+        base columns of a row (a simulation) come from :meth:`base_columns`,
+        shared by every row with the same X and input-side parameters.
+        """
         X = np.atleast_2d(X)
         P = X.shape[0]
         inp = [(e, th) for e, th in zip(effects, TH) if e.input_side]
@@ -100,20 +114,20 @@ class Fitter:
             uniq, inv = np.unique(key, axis=0, return_inverse=True)
             inv = np.ravel(inv)
             first = np.array([int(np.flatnonzero(inv == j)[0]) for j in range(len(uniq))])
-        mats = [[] for _ in range(P)]
+        parts = []
         for rec, yref in zip(records, yrefs):
-            n = len(rec.u)
-            Us = np.empty((len(first), n))
-            for j, p in enumerate(first):
-                u = rec.u
-                for e, th in inp:
-                    u = e.transform_input(u, rec.dt, th[p])
-                Us[j] = u
-            B = self.core.base(rec, X[first], Us, bool(inp))
-            ctx = {"t": np.arange(n) * rec.dt, "y_ref": yref, "dt": rec.dt}
+            B = self.base_columns(rec, X, key, first, inp)
+            ctx = {"t": np.arange(len(rec.u)) * rec.dt, "y_ref": yref, "dt": rec.dt}
             # regressors of blocks without nonlinear parameters are the same for every row
-            fixed = {id(e): e.columns(ctx, ()) for e in effects if not e.names}
-            for p in range(P):
+            fixed = {id(e): self.fixed_columns(e, ctx) for e in effects if not e.names}
+            parts.append((rec, ctx, B, fixed))
+        # The stacking below fixes the memory order of each matrix (numpy's
+        # concatenation follows its inputs'), and with it the order of the
+        # sums in the least-squares products: it is kept as it is, so the
+        # fits' numbers do not depend on how the matrices were cached.
+        for p in range(P):
+            m = []
+            for rec, ctx, B, fixed in parts:
                 filt, plain, last = [B[inv[p]]], [], []
                 for e, th in zip(effects, TH):
                     C = fixed[id(e)] if id(e) in fixed else e.columns(ctx, th[p])
@@ -122,8 +136,51 @@ class Fitter:
                 M = np.vstack(filt) if len(filt) > 1 else filt[0]
                 for e, th in zip(effects, TH):
                     M = e.output_op(M, rec.dt, th[p])
-                mats[p].append(np.vstack([M] + plain + last) if plain or last else M)
-        return [np.hstack(m).T for m in mats]
+                m.append(np.vstack([M] + plain + last) if plain or last else M)
+            yield np.hstack(m).T
+
+    def base_columns(self, rec, X, key, first, inp):
+        """Base columns (q, n) of the unique rows ``first`` of X on one record.
+
+        Simulations are kept (least recently used first out, up to
+        :attr:`cache_bytes`) by the record, the row's `key` (X and the
+        input-side parameters) and the input-side blocks: a refit evaluates
+        its start, its optimum and the nominal's X again and again.
+        """
+        ids = tuple(id(e) for e, _ in inp)
+        keys = [(id(rec.u), len(rec.u), rec.dt, ids, key[p].tobytes()) for p in first]
+        miss = [j for j, k in enumerate(keys) if k not in self._sims]
+        if miss:
+            rows = first[miss]
+            n = len(rec.u)
+            Us = np.empty((len(rows), n))
+            for j, p in enumerate(rows):
+                u = rec.u
+                for e, th in inp:
+                    u = e.transform_input(u, rec.dt, th[p])
+                Us[j] = u
+            got = self.core.base(rec, X[rows], Us, bool(inp))
+            for j, blocks in zip(miss, got):
+                # the entry holds the record's input and the blocks, so their ids stay unique
+                self._sims[keys[j]] = (rec.u, [e for e, _ in inp], blocks, blocks.nbytes)
+                self._sim_bytes += blocks.nbytes
+        out = []
+        for k in keys:
+            self._sims.move_to_end(k)
+            out.append(self._sims[k][2])
+        while self._sim_bytes > self.cache_bytes and len(self._sims) > len(keys):
+            self._sim_bytes -= self._sims.popitem(last=False)[1][3]
+        return out
+
+    def fixed_columns(self, e, ctx):
+        """Regressors of a block without nonlinear parameters, built once per driving signal."""
+        key = (id(e), id(ctx["y_ref"]), len(ctx["t"]), ctx["dt"])
+        if key not in self._fixed:
+            # the entry holds the block and the driving signal, so their ids stay unique
+            self._fixed[key] = (e, ctx["y_ref"], e.columns(ctx, ()))
+            if len(self._fixed) > 64:
+                self._fixed.popitem(last=False)
+        return self._fixed[key][2]
 
     def lin_slices(self, effects):
         """Where each effect's linear parameters sit in the coefficient vector.
@@ -162,13 +219,18 @@ class Fitter:
         its accuracy does not suffer from the squared condition number
         beyond second order.
         """
-        if not np.all(np.isfinite(A)):
-            return None, None
         s = np.sqrt(np.einsum("ij,ij->j", A, A))
+        # finite norms imply finite columns (a non-finite entry makes its
+        # column's sum of squares inf or nan); only an overflowing norm
+        # needs the look at every entry
+        if not np.all(np.isfinite(s)) and not np.all(np.isfinite(A)):
+            return None, None
         # a regressor these samples do not excite (a saturation knee above
         # every displacement of a subset) gets coefficient 0, not 1/ε
         on = s > 1e-10 * max(float(s.max()), 1e-300)
-        As = A[:, on] / s[on]
+        # A[:, on] is a Fortran-ordered copy (whatever the order of A), and
+        # a slow one: with every column on, the same array by one division
+        As = np.divide(A, s, order="F") if on.all() else A[:, on] / s[on]
         G = As.T @ As
         try:
             bs = np.linalg.solve(G, As.T @ y)
@@ -235,7 +297,7 @@ class Fitter:
     def cost(self, X, effects, TH, yrefs):
         """Training RMS [µm] of each candidate row (inf for divergent rows)."""
         out = np.full(np.atleast_2d(X).shape[0], np.inf)
-        for p, A in enumerate(self.design(self.records, X, effects, TH, yrefs)):
+        for p, A in enumerate(self.designs(self.records, X, effects, TH, yrefs)):
             b, r = self.fit_linear(self.rows(A), self.y, self.outer(effects, TH, p))
             if b is not None:
                 out[p] = math.sqrt(float(np.mean(r * r)))

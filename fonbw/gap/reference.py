@@ -103,6 +103,7 @@ from numba import njit
 from scipy.optimize import lsq_linear
 
 from ..fractional import apply_op, make_op
+from .blas import single_thread
 
 __all__ = ["ReferenceHysteresis", "ReferenceFit", "play_bank", "RATES", "INITIALS"]
 
@@ -446,8 +447,10 @@ class ReferenceHysteresis:
         else:
             Rb = _tsqr(np.column_stack([A, y]))
             R, b = Rb[:p, :p], Rb[:p, p]
-        # BVLS may leave a weight on its bound off by round-off
-        c = np.maximum(lsq_linear(R, b, bounds=(lo, hi), method="bvls", tol=1e-12).x, lo)
+        # BVLS may leave a weight on its bound off by round-off; a p x p
+        # problem runs on one BLAS thread (the same numbers, see fonbw.gap.blas)
+        with single_thread():
+            c = np.maximum(lsq_linear(R, b, bounds=(lo, hi), method="bvls", tol=1e-12).x, lo)
         e = y - A @ c
         rss = float(e @ e)
         free = (c > lo) | ~np.isfinite(lo)
@@ -515,9 +518,12 @@ class ReferenceHysteresis:
 
 def _tsqr(A, chunk=2048):
     # QR by row blocks: the same R (up to signs), several times faster than one
-    # LAPACK call on a tall, narrow matrix (better cache use)
-    Rs = [np.linalg.qr(A[i:i + chunk], mode="r") for i in range(0, A.shape[0], chunk)]
-    return np.linalg.qr(np.vstack(Rs), mode="r")
+    # LAPACK call on a tall, narrow matrix (better cache use). One BLAS
+    # thread: the blocks are small, and a second thread gave the same R
+    # at 20 times the wall time on a busy machine (fonbw.gap.blas)
+    with single_thread():
+        Rs = [np.linalg.qr(A[i:i + chunk], mode="r") for i in range(0, A.shape[0], chunk)]
+        return np.linalg.qr(np.vstack(Rs), mode="r")
 
 
 def _as_list(records):
