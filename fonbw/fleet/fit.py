@@ -23,8 +23,9 @@ __all__ = ["FIT_OPTIONS", "Fit", "fit_options", "records_digest", "identify_kwar
            "model_document",
            "model_bytes", "write_model", "read_fit"]
 
-#: Options that decide the model (seed, budget, model kind, memory engine and
-#: how the records are read), with the value each takes when not given. Options
+#: Options that decide the model (seed, budget, model kind, memory engine, how
+#: the records are read and the compensator's step an invertible model is
+#: fitted for), with the value each takes when not given. Options
 #: that do not change the result (threads, progress, plots) are not listed.
 FIT_OPTIONS = {
     "model": "fonbw", "seed": 0, "max_evals": 5000, "memory": "fast",
