@@ -1,4 +1,10 @@
-"""One-step slope, invertibility warnings and model-derived voltage limits."""
+"""One-step slope, invertibility warnings, model-derived voltage limits, the
+rest-cycle start and the preview inverse.
+
+References: finite differences of the compiled step (slope), the closed-form
+zero (k_u1/|k_h ρ|)^(1/(λ1−λ2)) and one-step slope k_u1 + k_h ρ dt^(λ2−λ1),
+the model's own stepper and batch simulation driven by the compensators'
+voltage, and a noisy record of a known invertible truth (identification)."""
 import warnings
 
 import numpy as np
