@@ -79,7 +79,7 @@ class Fitter:
         self._sims, self._sim_bytes, self._fixed = collections.OrderedDict(), 0, collections.OrderedDict()
 
     #: Bytes of simulated base columns kept between evaluations.
-    cache_bytes = 256 * 2**20
+    cache_bytes = 128 * 2**20
 
     def rows(self, A):
         """The rows of a design matrix over all samples that the fits use."""
