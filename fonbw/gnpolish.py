@@ -80,8 +80,11 @@ def gauss_newton_polish(proj, box):
             return ((R - r0[None, :]) / h[:, None]).T
 
         try:
-            least_squares(fun, z0, jac=jac, bounds=(0.0, 1.0), method="trf", x_scale="jac",
-                          xtol=1e-10, ftol=1e-12, gtol=1e-12, max_nfev=max(1, budget))
+            # a trial step into a divergent region overflows scipy's reduction ratio: it
+            # is rejected all the same, so say nothing
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                least_squares(fun, z0, jac=jac, bounds=(0.0, 1.0), method="trf", x_scale="jac",
+                              xtol=1e-10, ftol=1e-12, gtol=1e-12, max_nfev=max(1, budget))
         except _Spent:
             pass
         if not np.isfinite(cand[1]) or np.array_equal(cand[0], z0):

@@ -260,3 +260,26 @@ def test_progress_bar_counts_evaluations(capsys):
                      progress=True)
     err = capsys.readouterr().err
     assert "jDE" in err and f"{r.nfev}/300" in err
+
+
+def test_callable_polish_is_counted_and_capped():
+    calls = []
+
+    def polish(z0, f0, budget):
+        calls.append(budget)
+        return np.full_like(z0, 0.5), 0.0, min(7, budget)   # the unit-cube centre, 7 evaluations
+
+    rows = []
+
+    def f(X):
+        rows.append(X.shape[0])
+        return np.sum((X - 0.3) ** 2, axis=1) + 1.0
+
+    res = jde_minimize(f, [(-1.0, 2.0)] * 3, popsize=10, max_evals=200, seed=0, polish=polish,
+                       polish_maxfev=40)
+    # DE stops on its budget (160), the polish leaves 33 of 40, DE resumes with half
+    # of them and the last polish gets the rest; every evaluation counted
+    assert calls[0] == 40 and len(calls) >= 2
+    assert res.nfev == sum(rows) + sum(min(7, b) for b in calls) <= 200
+    assert sum(rows) > 160 and res.fun == 0.0
+    np.testing.assert_allclose(res.x, 0.5)          # centre of (-1, 2)

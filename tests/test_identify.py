@@ -420,3 +420,24 @@ def test_bipolar_single_rate_record_stays_in_identifiable_ranges(bipolar_bench_r
     # at the cap it is said so (this record pushes σ there)
     assert (p["sigma"] < 0.999e3) != any(w.startswith("sigma = 1000 is at its cap 1000") for w in res.warnings)
     assert res.rms < 0.05 * span
+
+
+def test_gauss_newton_polish_reaches_the_noise_floor_from_nearby(truth):
+    from fonbw.de import _Space
+    from fonbw.gnpolish import gauss_newton_polish
+
+    rec = noisy_record(truth, eq19(T=6.0), seed=31)
+    space = search_space("fonbw", rec)
+    proj = _Projected(space, _as_records(rec), hyst.param_names("fonbw", 3), "fonbw", "fast", 3)
+    box = _Space(space.bounds, space.log_scale)
+    x_true = np.array([0.02, 0.8 ** (1 / 1.5) * 0.02, 1.5, 0.95, 0.85])
+    z0 = box.to_unit(x_true[None, :])[0] + np.array([0.02, -0.02, 0.03, -0.03, 0.02])
+    f0 = float(proj(box.to_natural(z0[None, :]))[0])
+    z, f, used = gauss_newton_polish(proj, box)(z0, f0, 150)
+    rms_truth = np.sqrt(np.mean((truth.simulate(rec.u, DT) - rec.y) ** 2))
+    assert f0 > 2 * rms_truth                # the start is well off the floor
+    assert f <= rms_truth * 1.001 and used <= 150
+    assert f == pytest.approx(float(proj(box.to_natural(z[None, :]))[0]), rel=1e-12)
+    # no budget, no evaluation, the start returned
+    zb, fb, ub = gauss_newton_polish(proj, box)(z0, f0, 0)
+    assert ub == 0 and fb == f0 and np.array_equal(zb, z0)
