@@ -22,10 +22,10 @@ the noise floor in a few tens of evaluations, and what it leaves goes back to
 DE, then to a last polish (:meth:`fonbw.de.JDESolver.resume`). Measured on the
 eq.-(19) FONBW record at 5 kHz over 30 s (1.5e5 samples, 1500 evaluations):
 with 10 d = 50 individuals (21 generations) and an L-BFGS-B polish, DE settled
-in a wrong basin (σ → 0, n at its bound 4; RMS 0.053, 0.039 and 0.076 µm
-against the noise floor 0.020 µm) on seeds 1-3; scipy's DE on the same
-objective reached 0.024-0.027 µm. Now seeds 1-5 all end at the truth's RMS
-(BENCHMARKS.md, Identification speed).
+in wrong basins (RMS 0.053, 0.039 and 0.076 µm against the noise floor
+0.020 µm; seed 1 with σ → 0 and n at its bound 4) on seeds 1-3. Now seeds 1-5
+all end at the truth's RMS, and scipy's DE on the same objective and budget
+at 0.022-0.030 µm (BENCHMARKS.md, Identification speed).
 
 Linear parameters are solved, not searched (variable projection)
 ----------------------------------------------------------------
