@@ -2,7 +2,6 @@
 each checked against a reference computed here by other means."""
 import json
 import math
-import time
 
 import numpy as np
 import pytest
@@ -193,15 +192,17 @@ def test_draws_are_calibrated_and_reproducible(family):
 
 
 @pytest.mark.parametrize("family", gc.FAMILIES)
-def test_thirty_seconds_at_5khz_take_under_two_seconds(family):
+def test_thirty_seconds_at_5khz_chirp_continues_across_a_split(family):
+    # a long, fast record (the size the blind harness draws) stays finite, and
+    # running it in two pieces with the first as history gives the same output
+    # (its speed is measured in benchmarks, not asserted here)
     core = gc.draw_core(family, np.random.default_rng(2))
-    core.simulate(np.linspace(0, 1, 10), DT)  # compile outside the clock
     t = np.arange(150000) * DT
     u = 60.0 - 60.0 * np.cos(2 * np.pi * (1.0 + 0.6 * t) * t)  # chirp 1 → 37 Hz
-    t0 = time.perf_counter()
     y = core.simulate(u, DT)
-    assert time.perf_counter() - t0 < 2.0
-    assert np.all(np.isfinite(y))
+    assert np.all(np.isfinite(y)) and np.ptp(y) > 1.0
+    hist, tail = gc.mid_drive_record(u, 100000)
+    np.testing.assert_array_equal(core.simulate(tail, DT, history=hist), y[100000:])
 
 
 def test_clip_input_and_mid_drive_record():
