@@ -67,7 +67,7 @@ from . import checks
 from . import form as fm
 from . import effects as fx
 from . import selection
-from .fitter import KIND, Fitter, decimate, x_from_model
+from .fitter import KIND, Fitter, decimate, nominal_search, x_from_model
 from .localize import localize, noise_floor
 from .result import DiagnosisResult, jsonable
 
@@ -216,7 +216,7 @@ class Diagnosis:
         train, val, dt = self.train, self.val, self.dt
         if self.model_given is None:
             res = identify(self.coarse, KIND, seed=self.seed, max_evals=int(self.budget), N=self.N,
-                           memory=self.memory)
+                           memory=self.memory, **nominal_search(self.budget))
             x0 = np.asarray(res.search["x"], dtype=float)
         else:
             model = self.model_given

@@ -23,9 +23,26 @@ from ..io import Record
 from ..io import decimate as io_decimate
 from .cores import FonbwCore
 
-__all__ = ["KIND", "Fitter", "simulate_rows", "x_from_model", "decimate"]
+__all__ = ["KIND", "Fitter", "simulate_rows", "x_from_model", "decimate", "nominal_search"]
 
 KIND = "fonbw"
+
+
+def nominal_search(budget):
+    """Search settings of the diagnosis' nominal FONBW identifications.
+
+    jDE's population of 10 d = 50 (fewer for budgets under about 350
+    evaluations) and an L-BFGS-B polish, rather than :func:`fonbw.identify`'s
+    defaults (a population sized for 40 generations, a Gauss-Newton polish).
+    The candidates' joint refit undoes what the nominal absorbed of an effect
+    only within its own, shorter global search; identify's defaults drive
+    the nominal deeper into such basins (an RC amplifier taken in as λ2 at its
+    bound: gap closed 0.72 against 0.85 with these settings on the
+    amplifier-lag test case), and the diagnosis' thresholds and blind runs
+    were measured with these.
+    """
+    de_budget = int(budget) - (3 * int(budget)) // 10
+    return {"popsize": int(min(50, max(4, de_budget // 5))), "polish": "L-BFGS-B"}
 
 
 def simulate_rows(theta, U, dt, memory="fast", N=3):

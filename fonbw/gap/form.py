@@ -33,7 +33,7 @@ import numpy as np
 from ..de import jde_minimize
 from . import checks
 from .cores import ReferenceCore
-from .fitter import Fitter
+from .fitter import Fitter, nominal_search
 from .localize import _features, branch, reversal_age
 from .reference import ReferenceHysteresis
 
@@ -105,7 +105,7 @@ def second_chance(d):
         return False
     t0 = time.perf_counter()
     res = identify(d.coarse, "fonbw", seed=d.seed + 7919, max_evals=int(1.5 * d.budget), N=d.N,
-                   memory=d.memory)
+                   memory=d.memory, **nominal_search(1.5 * d.budget))
     x1 = np.asarray(res.search["x"], dtype=float)
     zero = [np.zeros(len(r.u)) for r in d.train]
     fit = d.fitter.refit([], x1, [], zero, evals=d.refit_evals, seed=d.seed)
