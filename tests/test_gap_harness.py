@@ -1,6 +1,6 @@
 """Tests of the blind gap harness (benchmarks/gap_truth.py, gap_effects_truth.py,
-blind_gap.py, gap_summary.py): the FONBW draw of the fixed-seed tests kept bit
-for bit, the calibration of effect magnitudes on every core family, the
+blind_gap.py, gap_summary.py): the FONBW draw of the fixed-seed tests kept (to
+rounding), the calibration of effect magnitudes on every core family, the
 amplifier's rail, records that start mid-drive, the per-scenario row and the
 per-family summary on hand-computed rows, and the run on dask against the same
 scenarios run in process. No diagnosis is run."""
@@ -19,26 +19,26 @@ import gap_truth as tr
 SCALE = 0.25
 
 
-def _digest(sc):
-    h = hashlib.sha256()
-    for r in sc["train"] + sc["validate"]:
-        h.update(np.ascontiguousarray(r.u).tobytes())
-        h.update(np.ascontiguousarray(r.y).tobytes())
-    return h.hexdigest()[:16]
+def _sums(sc):
+    u = np.concatenate([r.u for r in sc["train"] + sc["validate"]])
+    y = np.concatenate([r.y for r in sc["train"] + sc["validate"]])
+    return [u.size, float(u.sum()), float(y.sum()), float(y @ y)]
 
 
-# sha256 of the records of draw_scenario(seed, scale=0.25) as drawn before the
-# core families existed (seed 1: single drift, seed 2: pair creep + delay).
-# Bit for bit on one machine: another CPU may round the FONBW kernels
-# differently, and then only the comparison with the core path below holds
-HEAD_DIGESTS = {1: "ccc564e39c38b1c4", 2: "1cf1c8c9e093f627"}
+# Sizes and sums of the records of draw_scenario(seed, scale=0.25) (seed 1:
+# single drift, seed 2: pair creep + delay), as drawn before the core families
+# existed (then checked by hash on the machine of the time, and by these sums
+# since). Sums to 1e-9, not a hash: another CPU rounds the FONBW kernels
+# differently in the last bits; a changed scenario moves them by far more
+HEAD_SUMS = {1: [25375, 1391898.4693597206, 196459.55688476562, 2020637.156407535],
+             2: [25375, 1391898.4693597206, 193926.77612304688, 1982912.0964542031]}
 
 
-@pytest.mark.parametrize("seed", sorted(HEAD_DIGESTS))
+@pytest.mark.parametrize("seed", sorted(HEAD_SUMS))
 def test_fonbw_draw_of_the_fixed_seed_tests_is_unchanged(seed):
     sc = tr.draw_scenario(seed, scale=SCALE)
     assert sc["family"] == "fonbw" and sc["starts_at_rest"]
-    assert _digest(sc) == HEAD_DIGESTS[seed]
+    assert _sums(sc) == pytest.approx(HEAD_SUMS[seed], rel=1e-9, abs=0)
     # the family-aware path with the same core (a gap_cores.Core rebuilt from
     # the params) gives the same records
     core = gc.make_core("fonbw", sc["core_params"])
