@@ -130,7 +130,7 @@ from fonbw.gnpolish import gauss_newton_polish
 from fonbw.identifiable import LAM_MIN, SIGMA_MAX, lambda_floor, rate_span
 from fonbw.objective import Projected as _Projected, as_records as _as_records, rms_cost, simulate_record
 
-__all__ = ["KINDS", "IdentifyResult", "SearchSpace", "search_space", "identify",
+__all__ = ["KINDS", "IdentifyResult", "SearchSpace", "search_space", "search_vector", "identify",
            "rms_cost", "simulate_record"]
 
 KINDS = ("fonbw", "nbw", "cbw", "zhu")
@@ -393,7 +393,7 @@ def identify(records, kind: str = "fonbw", *, seed=None, max_evals: int = 5000,
              memory: str = "fast", N: int = 3, bounds: Mapping | None = None,
              reparametrize: bool = True, popsize: int | None = None,
              polish: bool | str = True, polish_maxfev: int | None = None,
-             callback=None, burn_in=None, for_compensation=None) -> IdentifyResult:
+             callback=None, burn_in=None, for_compensation=None, x0=None) -> IdentifyResult:
     """Identify a hysteresis model by minimizing eq. (18) with jDE.
 
     Parameters
@@ -435,6 +435,11 @@ def identify(records, kind: str = "fonbw", *, seed=None, max_evals: int = 5000,
         quasi-static gain at every training state, on both branches
         (:mod:`fonbw.invertibility`). ``IdentifyResult.invertibility`` and the
         model's saved JSON then record the slope reached.
+    x0 : FONBW or NBW model, or array_like, optional
+        A warm start, put into DE's initial population: a model of the kind
+        (an NBW for ``kind="fonbw"`` is the FONBW with λ1 = λ2 = 1, so the
+        result is never worse than it on these records) or a search vector
+        (``IdentifyResult.search["names"]``). Clipped into the bounds.
     popsize, polish, polish_maxfev, callback
         Passed to :func:`fonbw.de.jde_minimize`; ``polish_maxfev`` defaults to
         30 % of ``max_evals`` (local refinement pays off here; what a polish
@@ -468,11 +473,29 @@ def identify(records, kind: str = "fonbw", *, seed=None, max_evals: int = 5000,
         # Gauss-Newton on the residuals: a few Jacobians instead of tens of
         # quasi-Newton steps (fonbw.gnpolish); a constrained solve keeps L-BFGS-B.
         polish = gauss_newton_polish(proj, _Space(space.bounds, space.log_scale))
+    if x0 is not None:
+        x0 = search_vector(x0, space) if hasattr(x0, "params") else np.asarray(x0, dtype=float)
+        x0 = np.clip(x0, [b[0] for b in space.bounds], [b[1] for b in space.bounds])
     res, wall = _search(proj, workers, popsize=popsize, max_evals=int(max_evals), seed=seed, polish=polish,
-                        polish_maxfev=polish_maxfev, progress=progress, callback=callback)
+                        polish_maxfev=polish_maxfev, progress=progress, callback=callback, x0=x0)
     from fonbw.invertibility import annotate_result
     result = _identify_result(proj, res, wall, records, check=res.message != "interrupted")  # else no optimum
     return annotate_result(result, recs, for_compensation)
+
+
+def search_vector(model, space) -> np.ndarray:
+    """Search vector of a FONBW or NBW `model` in a FONBW/NBW `space`
+    (reparametrized: ρ, σ^(1/n) ρ, n, and λ1, λ2 for FONBW; an NBW has λ = 1)."""
+    p = model.params
+    if space.kind not in ("fonbw", "nbw") or space.names[1] != "sigma_rho":
+        raise ValueError(f"a model start needs the reparametrized fonbw or nbw search, not {space.kind!r}")
+    rho, sigma, n = float(p["rho"]), float(p["sigma"]), float(p["n"])
+    if sigma <= 0:
+        raise ValueError("the start model's sigma must be > 0")
+    x = [rho, sigma ** (1.0 / n) * rho, n]
+    if len(space.names) == 5:
+        x += [float(getattr(model, "lam1", 1.0)), float(getattr(model, "lam2", 1.0))]
+    return np.array(x)
 
 
 def _search(proj, workers, **options):

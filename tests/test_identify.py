@@ -441,3 +441,19 @@ def test_gauss_newton_polish_reaches_the_noise_floor_from_nearby(truth):
     # no budget, no evaluation, the start returned
     zb, fb, ub = gauss_newton_polish(proj, box)(z0, f0, 0)
     assert ub == 0 and fb == f0 and np.array_equal(zb, z0)
+
+
+def test_fonbw_warm_started_from_an_nbw_is_never_worse_than_it():
+    # an NBW truth: the FONBW with λ1 = λ2 = 1 contains it exactly; from its
+    # NBW start the FONBW search ends at or below the truth's RMS (the linear
+    # parameters are solved, so the start alone already reaches it), while a
+    # cold search with the same tiny budget does not get there
+    nbw = NBW(ku=TRUE["ku"], kh=TRUE["kh"], rho=TRUE["rho"], sigma=TRUE["sigma"], n=TRUE["n"])
+    rec = noisy_record(nbw, eq19(), seed=11)
+    truth_rms = float(np.sqrt(np.mean((nbw.simulate(rec.u, rec.dt) - rec.y) ** 2)))
+    warm = identify(rec, "fonbw", seed=0, max_evals=40, polish=False, x0=nbw)
+    cold = identify(rec, "fonbw", seed=0, max_evals=40, polish=False)
+    assert warm.rms <= truth_rms * (1 + 1e-9)
+    assert cold.rms > 1.05 * truth_rms
+    with pytest.raises(ValueError, match="reparametrized"):
+        identify(rec, "fonbw", max_evals=40, reparametrize=False, x0=nbw)

@@ -426,14 +426,12 @@ class Fitter:
 
 def x_from_model(model, space):
     """Search vector (identify's reparametrization) of a FONBW/NBW model."""
-    p = model.params
-    rho, sigma, n = float(p["rho"]), float(p["sigma"]), float(p["n"])
-    if sigma <= 0:
-        raise ValueError("diagnose: the model's sigma must be > 0 to be refit")
-    x = [rho, sigma ** (1.0 / n) * rho, n]
-    if len(space.names) == 5:
-        x += [float(getattr(model, "lam1", 1.0)), float(getattr(model, "lam2", 1.0))]
-    return np.array(x)
+    from ..identify import search_vector
+
+    try:
+        return search_vector(model, space)
+    except ValueError as exc:
+        raise ValueError(f"diagnose: {exc}; the nominal model cannot be refit") from None
 
 
 def decimate(records, q):
