@@ -68,6 +68,13 @@ class BuildError(ValueError):
     """An FMU could not be built (bad parameter set, failed validation)."""
 
 
+
+def cache_dir() -> Path:
+    """The per-user cache of built FMUs and compiled helpers (under the temporary
+    folder, one per user so that users on one machine do not share builds)."""
+    return Path(tempfile.gettempdir()) / f"fonbw-cosim-{getpass.getuser()}"
+
+
 def _package_dirs():
     """The installed ``fonbw`` package folder and its default-model folder
     (the same folder in a wheel install, two folders in an editable one)."""
@@ -316,7 +323,7 @@ def loop_fmus(controller: dict, out_dir=None, plant_sys=None, hysteresis: bool =
     folder is a per-user cache keyed by :func:`sources_key`.
     """
     if out_dir is None:
-        out_dir = Path(tempfile.gettempdir()) / f"fonbw-cosim-{getpass.getuser()}" / sources_key()
+        out_dir = cache_dir() / sources_key()
     out_dir = Path(out_dir)
     paths = {"hyst": _cached(out_dir / FMU_NAMES["hysteresis"], ["--only", "hysteresis"]),
              "comp": _cached(out_dir / FMU_NAMES["compensator"], ["--only", "compensator"])}

@@ -7,7 +7,6 @@ in :func:`fonbw.loop.controller_spec`.
 """
 from __future__ import annotations
 
-import getpass
 import os
 import tempfile
 from pathlib import Path
@@ -84,7 +83,9 @@ def build_native_fmus(out_dir=None, plant=None, hysteresis=True, models=None, pa
     from ..fmu import native
 
     if out_dir is None:
-        out_dir = Path(tempfile.gettempdir()) / f"fonbw-cosim-{getpass.getuser()}"
+        from ..fmu.build import cache_dir
+
+        out_dir = cache_dir()
     base = Path(out_dir) / "native"
     names = native.PASS_NAMES if pass_through else native.NATIVE_NAMES
     paths = {}

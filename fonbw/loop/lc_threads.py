@@ -24,7 +24,6 @@ is compared before and after) instead of assuming it.
 from __future__ import annotations
 
 import ctypes
-import getpass
 import hashlib
 import os
 import shutil
@@ -73,7 +72,9 @@ def _load():
         _failed = "needs Linux and gcc"
         return None
     key = hashlib.sha1(_SRC.encode()).hexdigest()[:12]
-    d = Path(tempfile.gettempdir()) / f"fonbw-cosim-{getpass.getuser()}" / "lc_threads"
+    from ..fmu.build import cache_dir
+
+    d = cache_dir() / "lc_threads"
     so = d / f"fonbw_lc_threads_{key}.so"
     try:
         if not so.is_file():

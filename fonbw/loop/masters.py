@@ -20,7 +20,6 @@ Units: u [V], y, r [µm], t [s].
 """
 from __future__ import annotations
 
-import getpass
 import tempfile
 import time
 from pathlib import Path
@@ -137,8 +136,9 @@ def _signal_fmu():
     """The native signal FMU (built once into the per-user cache), or None
     where this platform has no C compiler."""
     from ..fmu import native
+    from ..fmu.build import cache_dir
 
-    return native.cached_signal(Path(tempfile.gettempdir()) / f"fonbw-cosim-{getpass.getuser()}" / "native")
+    return native.cached_signal(cache_dir() / "native")
 
 
 def _add_slave(ex, fmu, name):
