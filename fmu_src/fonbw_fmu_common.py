@@ -450,6 +450,9 @@ class FonbwModelSlave(FonbwSlaveBase):
         # Resource file written by build_fmu.py: {"model": <fonbw model dict>, "dt": s}
         res = read_json(Path(self.resources) / MODEL_RESOURCE)
         p = fonbw_parameters(res["model"])
+        # the model's record (training range, start): the compensator runs that start
+        self._meta = {k: res["model"][k] for k in ("u_range", "start", "invertibility")
+                      if k in res["model"]}
         self._n_ku = len(p["ku"])
         for i, k in enumerate(p["ku"], start=1):
             unit = "um/V" if i == 1 else f"um/V{i}"
@@ -504,4 +507,7 @@ class FonbwModelSlave(FonbwSlaveBase):
 
     def _fonbw_model(self):
         import fonbw  # the bundled copy (use_bundled_fonbw)
-        return fonbw.FONBW(**self._model_kwargs())
+        m = fonbw.FONBW(**self._model_kwargs())
+        if self._meta:
+            m.meta = dict(self._meta)
+        return m

@@ -21,4 +21,5 @@ class FonbwHysteresis(FonbwModelSlave):
         self._default_experiment()
 
     def _build(self):
-        return self._fonbw_model().stepper(self.dt)
+        from fonbw.compensate.rest import started_stepper  # bundled copy
+        return started_stepper(self._fonbw_model(), self.dt)

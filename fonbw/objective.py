@@ -58,9 +58,18 @@ def lead_in(u, dt) -> np.ndarray:
 
 
 def simulate_record(model, u, dt, burn_in=0) -> np.ndarray:
-    """A model's output [µm] over a record's input `u` [V]: from rest, after
-    :func:`lead_in` when the record has a burn-in (it does not start at rest)."""
+    """A model's output [µm] over a record's input `u` [V]: from the model's
+    recorded start (from rest, or after the rest cycle it was identified
+    behind, counted from the end of it: :mod:`fonbw.compensate.rest`), after
+    :func:`lead_in` instead when the record has a burn-in (it does not start
+    at rest)."""
     if burn_in <= 0:
+        from .compensate.rest import start_history
+
+        pre = start_history(model, dt)
+        if pre.size:
+            y = model.simulate(np.concatenate([pre, u]), dt)
+            return y[pre.size:] - y[pre.size - 1]
         return model.simulate(u, dt)
     pre = lead_in(u, dt)
     return model.simulate(np.concatenate([pre, u]), dt)[pre.size:]

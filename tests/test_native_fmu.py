@@ -121,6 +121,32 @@ def test_compensator_agrees(fmus, memory, n):
         assert np.max(np.abs(got - ref)) <= 1e-12 * np.max(np.abs(ref))
 
 
+def test_compensator_runs_the_recorded_rest_cycle(tmp_path):
+    """A model identified after a rest cycle (meta "start"): the native
+    compensator runs that cycle at initialization and counts its output from
+    the end of it, as the library's compensator does; from rest it would not
+    reach the bottom of the trajectory."""
+    from fonbw.compensate.rest import rest_start_meta
+    from fonbw.fmu.build import model_resource
+
+    m0 = _model()
+    m = _model(kh=-m0.kh)  # invertible
+    m.meta = {"u_range": [-20.0, 100.0], "start": rest_start_meta((-20.0, 100.0), T=0.05)}
+    fmu = native.build_native_one("compensator", model_resource(m, DT), tmp_path, platforms=["linux64"])
+    ex = tmp_path / "x"
+    zipfile.ZipFile(fmu).extractall(ex)
+    f = {"fmu": fmu, "dir": ex}
+    t = np.arange(3000) * DT
+    hd = 4.0 * (1.0 - np.cos(2 * np.pi * 5.0 * t))  # from the rest zero up and back
+    ref = fonbw.compensator(m, DT)
+    u_ref = np.array([ref.step(x) for x in hd])
+    from_rest = fonbw.compensator(m, DT, history=())
+    u_rest = np.array([from_rest.step(x) for x in hd])
+    got = _run_fmpy(f, hd)
+    assert np.max(np.abs(got - u_ref)) <= 1e-11 * np.max(np.abs(u_ref))
+    assert np.max(np.abs(u_rest - u_ref)) > 1.0  # the start matters: the test can tell
+
+
 def test_plant_agrees_with_control(fmus):
     import control
 

@@ -81,7 +81,11 @@ Start
     From its virgin state instead, an identified FONBW's descending branch
     stays above that zero at the lowest voltage, and the bottom of a
     trajectory that returns to 0 µm is out of reach (``history=()`` runs
-    from the virgin state).
+    from the virgin state). The same start is run wherever the model runs
+    sample by sample or against a record: the hysteresis and compensator FMUs
+    (pythonfmu and native), the closed loop's actuator
+    (:func:`fonbw.compensate.rest.started_stepper`) and
+    :func:`fonbw.objective.simulate_record` (``fonbw validate``).
 
 Voltage limits default to the model's training input range (stored at
 identification as ``u_range``), else the paper's amplifier range 0–120 V. A sample

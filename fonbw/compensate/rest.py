@@ -28,7 +28,7 @@ import math
 import numpy as np
 
 __all__ = ["REST_CYCLE_T", "rest_cycle", "start_history", "with_rest_cycle", "history_input",
-           "rest_start_meta"]
+           "rest_start_meta", "started_stepper", "StartedStepper"]
 
 #: Duration of the rest cycle [s]: slow enough to be quasi-static for the
 #: rate-dependent models, short against the training records.
@@ -66,6 +66,64 @@ def start_history(model, dt) -> np.ndarray:
     if "rest_cycle" not in st:
         return np.zeros(0)
     return rest_cycle(st["rest_cycle"], dt, st.get("T", REST_CYCLE_T))
+
+
+class StartedStepper:
+    """A model's stepper that has run the model's recorded start.
+
+    Same interface as :class:`fonbw.hysteresis.Stepper`; the outputs are
+    counted from the model's output at the end of the start (a sensor zeroed
+    there), and :meth:`reset` runs the start again. The hysteresis blocks of
+    the closed loop and the hysteresis FMUs use it, so that a model and its
+    compensator share one zero.
+    """
+
+    def __init__(self, stepper, history):
+        self._st = stepper
+        self.history = np.ascontiguousarray(history, dtype=float)
+        self.reset()
+
+    def reset(self) -> None:
+        self._st.reset()
+        y0 = 0.0
+        for u in self.history:
+            y0 = self._st.step(u)
+        self.zero = float(y0)
+        self._steps = 0
+
+    def step(self, u: float) -> float:
+        self._steps += 1
+        return self._st.step(u) - self.zero
+
+    def peek(self, u: float) -> float:
+        return self._st.peek(u) - self.zero
+
+    @property
+    def steps(self) -> int:
+        return self._steps
+
+    @property
+    def state_variable(self) -> float:
+        return self._st.state_variable
+
+    def get_state(self) -> np.ndarray:
+        return np.concatenate([[float(self._steps), self.zero], self._st.get_state()])
+
+    def set_state(self, state) -> None:
+        s = np.asarray(state, dtype=float)
+        if s.ndim != 1 or len(s) < 3:
+            raise ValueError("state must be a 1-D array from get_state()")
+        self._st.set_state(s[2:])
+        self._steps, self.zero = int(s[0]), float(s[1])
+
+
+def started_stepper(model, dt):
+    """``model``'s stepper at dt [s], started as the model records
+    (:func:`start_history`): a :class:`StartedStepper` after a rest cycle,
+    else the plain stepper (from rest)."""
+    st = model.stepper(dt)
+    pre = start_history(model, st.dt)
+    return StartedStepper(st, pre) if pre.size else st
 
 
 def history_input(model, dt, history):

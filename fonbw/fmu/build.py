@@ -112,8 +112,9 @@ def model_resource(params, dt: float = DEFAULT_DT) -> dict:
     """Resource of the hysteresis and compensator FMUs: the model as the library
     writes it (`params` a model, or a JSON file round-tripped through
     :func:`fonbw.load_model`, so it is known to load), the default internal
-    step [s] and the compensator's voltage range [V]."""
-    from fonbw.compensate import DEFAULT_LIMITS
+    step [s] and the compensator's voltage range [V] (the model's training
+    range, :func:`fonbw.compensate.default_limits`)."""
+    from fonbw.compensate import default_limits
 
     if hasattr(params, "to_dict"):
         model = params
@@ -125,7 +126,7 @@ def model_resource(params, dt: float = DEFAULT_DT) -> dict:
     if not isinstance(model, fonbw.FONBW):  # NBW is a FONBW with lam1 = lam2 = 1
         raise BuildError(f"{params}: the FMUs wrap the FONBW model, got kind {model.kind!r}")
     return {"model": model.as_fonbw().to_dict(), "dt": float(dt),
-            "limits": [float(x) for x in DEFAULT_LIMITS]}
+            "limits": [float(x) for x in default_limits(model)]}
 
 
 def statespace_resource(sys_, input=("x", "um", "Plant input"),

@@ -124,7 +124,19 @@ def _model_config(res: dict) -> dict:
             "DEFAULT_UMIN": _c(lo), "DEFAULT_UMAX": _c(hi), "DEFAULT_K": str(int(p.get("K", fonbw.fractional.FAST_K))),
             "DEFAULT_M": str(int(p.get("M", fonbw.fractional.FAST_M))),
             "DEFAULT_L": str(int(p.get("L", fonbw.fractional.SHORT_L))),
-            "DEFAULT_ENGINE": str(ENGINE_CODES[memory])}
+            "DEFAULT_ENGINE": str(ENGINE_CODES[memory]), "REST_CYCLE": _rest_cycle(res["model"])}
+
+
+def _rest_cycle(model: dict) -> str:
+    """``{lo, hi, T}`` of the rest cycle the model records as its start
+    (:mod:`fonbw.compensate.rest`), ``{0, 0, 0}`` for a start from rest."""
+    from fonbw.compensate.rest import REST_CYCLE_T
+
+    st = model.get("start") or {}
+    if "rest_cycle" not in st:
+        return "{0.0, 0.0, 0.0}"
+    lo, hi = (float(v) for v in st["rest_cycle"])
+    return "{" + ", ".join(_c(v) for v in (lo, hi, float(st.get("T", REST_CYCLE_T)))) + "}"
 
 
 def _plant_config(res: dict) -> dict:
@@ -440,13 +452,6 @@ def build_native_one(kind: str, res: dict, out_dir, platforms=None, pass_through
     if missing or not platforms:
         raise NativeBuildError(f"no compiler for {', '.join(missing) or 'any platform'} "
                                f"(need {', '.join(PLATFORMS[p][0] for p in missing or PLATFORMS)})")
-    start = (res.get("model") or {}).get("start") or {}
-    if kind == "compensator" and "rest_cycle" in start:
-        import warnings
-
-        warnings.warn("the model records a rest cycle before t = 0 (meta 'start'); the library's "
-                      "compensator runs it first and counts its output from the end of it, the native "
-                      "compensator starts from rest: their outputs differ", RuntimeWarning, stacklevel=2)
     mid = _name(kind, pass_through)
     guid = _guid(kind, res, pass_through)
     out_dir = Path(out_dir)

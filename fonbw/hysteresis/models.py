@@ -226,11 +226,17 @@ class FONBW(_Model):
 
     def as_fonbw(self) -> "FONBW":
         """This model as a plain :class:`FONBW` (an NBW becomes λ1 = λ2 = 1 with the
-        default memory engine); the FMUs and the closed loop take this form."""
+        default memory engine); the FMUs and the closed loop take this form. The
+        model's record (``meta``: training range, start, invertibility) comes along:
+        the compensators run the start it names."""
         p = dict(self.params)
         p.setdefault("lam1", 1.0)
         p.setdefault("lam2", 1.0)
-        return FONBW(**p)
+        m = FONBW(**p)
+        meta = getattr(self, "meta", None)
+        if meta:
+            m.meta = dict(meta)
+        return m
 
     def tail_error(self, dt=None):
         """Fast-engine tail errors E1 of the two derivatives (0 for other engines)."""

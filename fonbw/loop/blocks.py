@@ -30,6 +30,7 @@ import control as ct
 
 from .. import plant as _plant
 from ..compensate import compensator
+from ..compensate.rest import started_stepper
 from .controller import LoopController
 from .spec import CosimError
 from .wiring import whole_multiple
@@ -83,7 +84,7 @@ def library_block(role, cfg, dt) -> LibraryBlock:
     """The library's stepper for `role` (``hyst``, ``comp``, ``ctrl``,
     ``plant``) from a run's configuration `cfg`, at step `dt` [s]."""
     if role == "hyst":
-        st = cfg["truth"].stepper(dt)
+        st = started_stepper(cfg["truth"], dt)
         return LibraryBlock(role, st.step, dt, st)
     if role == "comp":
         c = compensator(cfg["model"], dt)

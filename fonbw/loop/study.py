@@ -34,19 +34,10 @@ def default_truth(model=None):
     p = dict(m.params)
     p["kh"] = 1.10 * p["kh"]
     p["ku"] = [0.97 * p["ku"][0]] + list(p["ku"][1:])
-    return FONBW(**p)
-
-
-def _from_rest(model):
-    """The model without its recorded rest cycle: the loop's true actuator is
-    simulated from rest, so the compensator's model must start there too."""
-    meta = dict(getattr(model, "meta", None) or {})
-    if "start" not in meta:
-        return model
-    meta.pop("start")
-    m = type(model)(**model.params)
-    m.meta = meta
-    return m
+    truth = FONBW(**p)
+    if getattr(m, "meta", None):  # the same stage, zeroed after the same start
+        truth.meta = dict(m.meta)
+    return truth
 
 
 def _row(traj, pl, mode, res):
@@ -78,8 +69,9 @@ def ff_fb_study(out_dir=None, master="reference", trajectories=("sine5", "multi"
         The identified model the compensator inverts (default: the
         package's default model); e.g. Table 4's FONBW
         (:func:`fonbw.reproduce.table4_models`), identified with CBW and NBW
-        on the same records. Its rest cycle, if any, is left out: the true
-        actuator starts from rest.
+        on the same records. A model identified after a rest cycle
+        (``meta["start"]``) has its compensator and the default truth run
+        that cycle before t = 0 and count from its end.
     truth : FONBW, "default" or None
         True actuator; "default": :func:`default_truth`; None: the model
         itself (feedforward then only meets the plant's dynamics and creep).
@@ -92,7 +84,7 @@ def ff_fb_study(out_dir=None, master="reference", trajectories=("sine5", "multi"
         comp_saturated (compensator samples at a voltage limit, reference
         master), error.
     """
-    model = _from_rest(as_model(model, "model"))
+    model = as_model(model, "model")
     tr_model = default_truth(model) if isinstance(truth, str) and truth == "default" else (
         model if truth is None else as_model(truth, "truth"))
     rows, traces = [], {}

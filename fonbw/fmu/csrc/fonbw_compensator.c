@@ -129,16 +129,19 @@ static Root solve(Compensator *cp, double hd, double x0, double slope) {
 
 void comp_reset(Compensator *c) {
     fonbw_reset(&c->m);
-    c->uprev = clamp(0.0, c->lo, c->hi);
+    c->y0 = 0.0;
+    c->uprev = c->rest_n > 0 ? fonbw_rest_cycle(&c->m, c->rest_lo, c->rest_hi, c->rest_n, &c->y0) : clamp(0.0, c->lo, c->hi);
     c->slope = NAN;
     c->steps = c->n_sat = c->n_fail = c->status = c->y_model = 0.0;
 }
 
-int comp_init(Compensator *c, const FonbwParams *p, double dt, double lo, double hi) {
+int comp_init(Compensator *c, const FonbwParams *p, double dt, double lo, double hi,
+              const double rest[3]) {
     if (fonbw_init(&c->m, p, dt) != 0) return -1;
     /* the library's default tolerance 1e-10, halved in its solve (its output is counted
      * from the zero of a start history, whose rounding must stay within 1e-10) */
     c->lo = lo; c->hi = hi; c->tol = 0.5 * 1e-10; c->maxit = 100;
+    c->rest_lo = rest[0]; c->rest_hi = rest[1]; c->rest_n = fonbw_rest_samples(rest[2], dt);
     comp_reset(c);
     return 0;
 }
@@ -146,9 +149,9 @@ int comp_init(Compensator *c, const FonbwParams *p, double dt, double lo, double
 void comp_free(Compensator *c) { fonbw_free(&c->m); }
 
 double comp_step(Compensator *c, double hd) {
-    Root r = solve(c, hd, c->uprev, c->slope);
+    Root r = solve(c, hd + c->y0, c->uprev, c->slope);
     c->slope = r.slope;
-    c->y_model = fonbw_step(&c->m, r.x, 1);
+    c->y_model = fonbw_step(&c->m, r.x, 1) - c->y0;
     c->uprev = r.x;
     c->status = r.status;
     c->steps += 1.0;
@@ -157,19 +160,19 @@ double comp_step(Compensator *c, double hd) {
     return r.x;
 }
 
-#define COMP_NSCALAR 7
+#define COMP_NSCALAR 8
 
 size_t comp_state_size(const Compensator *c) { return COMP_NSCALAR + fonbw_state_size(&c->m); }
 
 void comp_state_write(const Compensator *c, double *s) {
     s[0] = c->uprev; s[1] = c->slope; s[2] = c->steps; s[3] = c->n_sat;
-    s[4] = c->n_fail; s[5] = c->status; s[6] = c->y_model;
+    s[4] = c->n_fail; s[5] = c->status; s[6] = c->y_model; s[7] = c->y0;
     fonbw_state_write(&c->m, s + COMP_NSCALAR);
 }
 
 int comp_state_read(Compensator *c, const double *s, size_t n) {
     if (n < COMP_NSCALAR || fonbw_state_read(&c->m, s + COMP_NSCALAR, n - COMP_NSCALAR) != 0) return -1;
     c->uprev = s[0]; c->slope = s[1]; c->steps = s[2]; c->n_sat = s[3];
-    c->n_fail = s[4]; c->status = s[5]; c->y_model = s[6];
+    c->n_fail = s[4]; c->status = s[5]; c->y_model = s[6]; c->y0 = s[7];
     return 0;
 }

@@ -54,6 +54,7 @@ typedef struct {
     int built_from_i[NVR];
     int built_engine;
     Fonbw hyst;
+    double hyst_y0;         /* hysteresis: output at the end of its rest cycle */
     Compensator comp;
     Plant plant;
     Pid pid;

@@ -93,6 +93,10 @@ void inst_free_model(Instance *c) {
 }
 
 #if MODEL_KIND != KIND_PLANT && MODEL_KIND != KIND_PID
+/* the model's recorded start {lo, hi, T}: a rest cycle run before t = 0, from
+ * whose end the output is counted (T = 0: from rest) */
+static const double REST[3] = REST_CYCLE;
+
 static FonbwParams params_of(const Instance *c) {
     FonbwParams p;
     int k;
@@ -162,9 +166,12 @@ int inst_build_model(Instance *c) {
                      c->r[VR_UMIN], c->r[VR_UMAX]);
             bad = msg;
         }
-        if (!bad) rc = comp_init(&c->comp, &p, dt, c->r[VR_UMIN], c->r[VR_UMAX]);
+        if (!bad) rc = comp_init(&c->comp, &p, dt, c->r[VR_UMIN], c->r[VR_UMAX], REST);
 #else
         if (!bad) rc = fonbw_init(&c->hyst, &p, dt);
+        c->hyst_y0 = 0.0;
+        if (!bad && rc == 0 && fonbw_rest_samples(REST[2], dt) > 0)
+            fonbw_rest_cycle(&c->hyst, REST[0], REST[1], fonbw_rest_samples(REST[2], dt), &c->hyst_y0);
 #endif
     }
 #endif
@@ -203,7 +210,7 @@ void inst_one_step(Instance *c) {
 #elif MODEL_KIND == KIND_PID
     c->r[VR_OUT] = pid_step(&c->pid, c->r[VR_IN], c->r[VR_Y], c->r[VR_UFF]);
 #elif MODEL_KIND == KIND_HYST
-    c->r[VR_OUT] = fonbw_step(&c->hyst, c->r[VR_IN], 1);
+    c->r[VR_OUT] = fonbw_step(&c->hyst, c->r[VR_IN], 1) - c->hyst_y0;
 #elif MODEL_KIND == KIND_COMP
     c->r[VR_OUT] = comp_step(&c->comp, c->r[VR_IN]);
     c->i[VR_STATUS] = (int)c->comp.status;
@@ -219,7 +226,7 @@ size_t inst_model_size(const Instance *c) {
 #elif MODEL_KIND == KIND_PID
     return 3;
 #elif MODEL_KIND == KIND_HYST
-    return fonbw_state_size(&c->hyst);
+    return 1 + fonbw_state_size(&c->hyst);
 #elif MODEL_KIND == KIND_COMP
     return comp_state_size(&c->comp);
 #else
@@ -233,7 +240,8 @@ void inst_model_write(const Instance *c, double *d) {
 #elif MODEL_KIND == KIND_PID
     d[0] = c->pid.i; d[1] = c->pid.e1; d[2] = c->pid.d1;
 #elif MODEL_KIND == KIND_HYST
-    fonbw_state_write(&c->hyst, d);
+    d[0] = c->hyst_y0;
+    fonbw_state_write(&c->hyst, d + 1);
 #elif MODEL_KIND == KIND_COMP
     comp_state_write(&c->comp, d);
 #else
@@ -250,7 +258,9 @@ int inst_model_read(Instance *c, const double *d, size_t nm) {
     c->pid.i = d[0]; c->pid.e1 = d[1]; c->pid.d1 = d[2];
     return 0;
 #elif MODEL_KIND == KIND_HYST
-    return fonbw_state_read(&c->hyst, d, nm);
+    if (nm < 1 || fonbw_state_read(&c->hyst, d + 1, nm - 1) != 0) return -1;
+    c->hyst_y0 = d[0];
+    return 0;
 #elif MODEL_KIND == KIND_COMP
     return comp_state_read(&c->comp, d, nm);
 #else

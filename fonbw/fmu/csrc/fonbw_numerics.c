@@ -372,3 +372,27 @@ int fonbw_state_read(Fonbw *m, const double *s, size_t n) {
     m->h2 = s[4]; m->x0 = s[5]; m->p0 = s[6]; m->cnt = s[7];
     return 0;
 }
+
+/* The rest cycle of fonbw/compensate/rest.py: n samples of a raised cosine from
+ * the rest voltage (the point of [lo, hi] nearest 0 V) to hi and back, run
+ * through the model; *y_end gets the output at its end, the voltage is returned. */
+double fonbw_rest_cycle(Fonbw *m, double lo, double hi, long n, double *y_end) {
+    const double PI2 = 6.283185307179586;
+    double u0 = lo > 0.0 ? lo : 0.0, u = 0.0;
+    long i;
+    if (u0 > hi) u0 = hi;
+    for (i = 1; i <= n; i++) {
+        u = u0 + (hi - u0) * 0.5 * (1.0 - cos(PI2 * (double)i / (double)n));
+        *y_end = fonbw_step(m, u, 1);
+    }
+    return u;
+}
+
+/* samples of a rest cycle of T s at step dt (0: none): the library's
+ * max(round(T / dt), 8), rounding half to even as Python's round does */
+long fonbw_rest_samples(double T, double dt) {
+    long n;
+    if (!(T > 0.0)) return 0;
+    n = (long)nearbyint(T / dt);
+    return n < 8 ? 8 : n;
+}

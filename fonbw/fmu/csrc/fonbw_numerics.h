@@ -54,6 +54,10 @@ typedef struct {
     int maxit;
     double uprev, slope;
     double steps, n_sat, n_fail, status, y_model;
+    /* rest cycle run before t = 0 (rest_T = 0: none) and the model's output
+     * at its end, from which the outputs are counted (fonbw/compensate/rest.py) */
+    double rest_lo, rest_hi, y0;
+    long rest_n;
 } Compensator;
 
 /* PID of fonbw.pid.PIDStepper inside fonbw.loop.LoopController */
@@ -88,7 +92,12 @@ size_t fonbw_state_size(const Fonbw *m);
 void fonbw_state_write(const Fonbw *m, double *s);
 int fonbw_state_read(Fonbw *m, const double *s, size_t n);
 
-int comp_init(Compensator *c, const FonbwParams *p, double dt, double lo, double hi);
+/* the rest cycle before t = 0 (fonbw/compensate/rest.py) */
+double fonbw_rest_cycle(Fonbw *m, double lo, double hi, long n, double *y_end);
+long fonbw_rest_samples(double T, double dt);
+
+int comp_init(Compensator *c, const FonbwParams *p, double dt, double lo, double hi,
+              const double rest[3]);
 void comp_free(Compensator *c);
 void comp_reset(Compensator *c);
 double comp_step(Compensator *c, double hd);
