@@ -155,6 +155,37 @@ def test_identify_for_compensation_records_a_positive_slope(files, small, tmp_pa
     assert r.returncode == 2 and "--for-compensation" in r.stderr and not (tmp_path / "bad.json").exists()
 
 
+def test_rest_cycle_start_identified_recorded_and_validated(tmp_path):
+    """A stage zeroed at rest after a drive cycle: validate runs the start a
+    model records (exact against the truth simulated with the cycle written
+    out), and identify --rest-cycle records that start in the saved model."""
+    from fonbw.compensate.rest import rest_cycle, rest_start_meta
+
+    dt = 1e-3
+    truth = fonbw.FONBW(**TABLE1)
+    t = np.arange(3000) * dt
+    u = 60 - 60 * np.cos(2 * np.pi * 2 * t)
+    pre = rest_cycle((0.0, 120.0), dt)
+    full = truth.simulate(np.concatenate([pre, u]), dt)
+    y = full[pre.size:] - full[pre.size - 1]
+    write_csv(tmp_path / "meas.csv", {"t": t, "u": u, "y": y})
+    truth.save(tmp_path / "virgin.json")
+    truth.meta = {"u_range": [0.0, 120.0], "start": rest_start_meta((0.0, 120.0))}
+    truth.save(tmp_path / "started.json")
+    got = {}
+    for name in ("virgin", "started"):
+        r = run("validate", tmp_path / f"{name}.json", tmp_path / "meas.csv", "--json", "--keep-offset")
+        assert r.returncode == 0, r.stderr
+        got[name] = json.loads(r.stdout)["rms"]
+    assert got["started"] < 1e-9 and got["virgin"] > 0.05
+    out = tmp_path / "fit.json"
+    r = run("identify", tmp_path / "meas.csv", "--model", "nbw", "--rest-cycle", "--max-evals", "60", "-q",
+            "--keep-offset", "-o", out)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(out.read_text())
+    assert doc["start"] == {"rest_cycle": [0.0, 120.0], "T": 1.0} and doc["fit"]["options"]["rest_cycle"]
+
+
 def _popen(args, env=None, umask=None):
     """The command line in a fresh process that handles SIGINT like a terminal's
     foreground job (a background shell may have set it to be ignored)."""

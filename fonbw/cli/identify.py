@@ -43,6 +43,13 @@ def add_arguments(p) -> None:
                    help="identify a model whose per-step inverse exists at the compensator's step DT [s]: "
                         "its one-step slope stays positive, with margin, at every state the records visit "
                         "(the saved model records the slope and margin)")
+    p.add_argument("--rest-cycle", action="store_true", dest="rest_cycle",
+                   help="the records start with the stage at rest after a previous drive cycle, its "
+                        "sensor zeroed there (as a stage is after power-up and a first sweep): the model "
+                        "runs a 1-s cycle rest -> top -> rest over the records' voltage range before each "
+                        "record and counts its output from the end of it; the saved model records that "
+                        "start, and the compensators and FMUs run it first. Without it a model starts "
+                        "from its virgin state, whose descending branch does not come back to 0 um")
     p.add_argument("--no-holdout", action="store_true",
                    help="with several records, skip the fit on all but one and the check on the one left out")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")

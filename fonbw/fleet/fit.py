@@ -31,6 +31,7 @@ FIT_OPTIONS = {
     "model": "fonbw", "seed": 0, "max_evals": 5000, "memory": "fast",
     "columns": None, "header": None, "delimiter": None, "time_unit": "s", "u_scale": 1.0, "y_scale": 1.0,
     "resample": False, "unit_check": "error", "keep_offset": False, "for_compensation": None,
+    "rest_cycle": False,
 }
 
 
@@ -90,6 +91,7 @@ def fit_options(ns) -> dict:
         opts["for_compensation"] = float(dtc)
     opts["u_scale"], opts["y_scale"] = float(opts["u_scale"]), float(opts["y_scale"])
     opts["resample"], opts["keep_offset"] = bool(opts["resample"]), bool(opts["keep_offset"])
+    opts["rest_cycle"] = bool(opts["rest_cycle"])
     return opts
 
 
@@ -182,12 +184,32 @@ def identify_paths(paths, options, *, progress: bool = False, workers: int | Non
     recs = read_records(paths, SimpleNamespace(**options))
     digest = records_digest(paths, options)
     burn_in = burn_ins(recs, say)
+    if options.get("rest_cycle"):
+        recs, burn_in = _after_rest_cycle(recs, burn_in)
     kw = identify_kwargs(options, burn_in, progress=progress, workers=workers)
     if announce is not None:
         announce(recs, kw)
     res = identify(recs, **kw)
+    if options.get("rest_cycle") and res.message != "interrupted":
+        from ..compensate.rest import rest_start_meta
+
+        res.model.meta = {**(getattr(res.model, "meta", None) or {}), "start": rest_start_meta(_u_range(recs))}
     doc = {} if res.message == "interrupted" else model_document(res, paths, options, digest)
     return Fit(result=res, records=recs, burn_in=burn_in, document=doc)
+
+
+def _u_range(recs):
+    return (min(float(r.u.min()) for r in recs), max(float(r.u.max()) for r in recs))
+
+
+def _after_rest_cycle(recs, burn_in):
+    """The records behind a rest cycle over their input range
+    (:func:`fonbw.compensate.rest.with_rest_cycle`), the cycle added to each
+    burn-in: the stage was zeroed at rest after a previous drive cycle."""
+    from ..compensate.rest import with_rest_cycle
+
+    cycled, pre = with_rest_cycle(recs, _u_range(recs))
+    return cycled, [p + b for p, b in zip(pre, burn_in)]
 
 
 def model_document(result, paths, options, digest) -> dict:
