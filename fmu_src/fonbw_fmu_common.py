@@ -450,9 +450,8 @@ class FonbwModelSlave(FonbwSlaveBase):
         # Resource file written by build_fmu.py: {"model": <fonbw model dict>, "dt": s}
         res = read_json(Path(self.resources) / MODEL_RESOURCE)
         p = fonbw_parameters(res["model"])
-        # the model's record (training range, start): the compensator runs that start
-        self._meta = {k: res["model"][k] for k in ("u_range", "start", "invertibility")
-                      if k in res["model"]}
+        # the model's record (training range, invertibility); its start is a parameter below
+        self._meta = {k: res["model"][k] for k in ("u_range", "invertibility") if k in res["model"]}
         self._n_ku = len(p["ku"])
         for i, k in enumerate(p["ku"], start=1):
             unit = "um/V" if i == 1 else f"um/V{i}"
@@ -478,6 +477,9 @@ class FonbwModelSlave(FonbwSlaveBase):
                                "history + geometric tail modes), exact (full history, O(k) "
                                "per step), short (short-memory window, inaccurate), "
                                "oustaloup (refined Oustaloup filter of the paper's toolbox)")
+        from fonbw.compensate.rest import REST_PARAMETERS, rest_values  # bundled copy
+        for (name, unit, doc), v in zip(REST_PARAMETERS, rest_values(res["model"])):
+            self._parameter(name, v, unit, doc)
         self._parameter("dt", float(res.get("dt", 1e-4)), "s",
                         "Internal fixed step of the GL discretization; every communication "
                         "step must be a whole multiple of it")
@@ -501,13 +503,20 @@ class FonbwModelSlave(FonbwSlaveBase):
             v = kw[k]
             if math.isfinite(v) and not (0.0 < v <= 1.0):
                 problems.append(f"{k} = {v!r} must lie in (0, 1]")
+        lo, hi, T = self.rest_lo, self.rest_hi, self.rest_T
+        if not (math.isfinite(T) and T >= 0.0 and (T == 0.0 or (math.isfinite(lo) and math.isfinite(hi)
+                                                                and lo < hi))):
+            problems.append(f"rest_T = {T!r} s must be >= 0 (0: start from rest), and with a rest cycle "
+                            f"rest_lo = {lo!r} V < rest_hi = {hi!r} V")
         if self.memory not in MEMORY_ENGINES:
             problems.append(f"memory = {self.memory!r} is not one of {', '.join(MEMORY_ENGINES)}")
         return problems
 
     def _fonbw_model(self):
         import fonbw  # the bundled copy (use_bundled_fonbw)
+        from fonbw.compensate.rest import start_from_values
+
         m = fonbw.FONBW(**self._model_kwargs())
-        if self._meta:
-            m.meta = dict(self._meta)
+        start = start_from_values(self.rest_lo, self.rest_hi, self.rest_T)
+        m.meta = {**self._meta, **({"start": start} if start else {})}
         return m

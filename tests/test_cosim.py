@@ -202,6 +202,24 @@ def test_loop_runs_the_models_recorded_start():
     assert np.max(np.abs(y[pre.size:] - y[pre.size - 1] - same.y)) <= 1e-9
 
 
+def test_fmu_masters_run_the_models_recorded_start(fmu_dir, tmp_path):
+    # The FMUs take the start (rest_lo, rest_hi, rest_T) and the compensator's
+    # limits as parameters the master sets from the model: fmpy with the
+    # pythonfmu and the native FMUs, libcosim with the native ones, all equal
+    # to the reference master's trace
+    path = tmp_path / "started.json"
+    _started().save(path)
+    models = {"compensator": str(path), "hysteresis": str(path)}
+    case = dict(scenario="sine5", mode="ff+fb", plant="dynamics+creep", T=T, models=models)
+    runs = _drive("fmpy", fmu_dir, [case, {**case, "native": True}], "fmpy_started")
+    runs += _drive("libcosim", fmu_dir, [{**case, "native": True}], "libcosim_started")
+    for i, pair in enumerate(runs):
+        _assert_same(pair, f"started model, run {i}")
+    ref = loop.run_cosim(master="reference", **{**case, "models": {"compensator": _started(),
+                                                                   "hysteresis": fonbw.FONBW(**INVERTIBLE)}})
+    assert abs(ref.rms_error - runs[0]["ref"][1]["rms_error"]) > 1e-3  # the start changes the run
+
+
 def test_feedforward_with_the_default_model_is_reported(reference_runs):
     # The shipped parameter set (models/fonbw_default.json, the paper's Table 1)
     # has no stable per-sample inverse at 10 kHz (kh rho < 0, lam1 > lam2: the

@@ -28,7 +28,8 @@ import math
 import numpy as np
 
 __all__ = ["REST_CYCLE_T", "rest_cycle", "start_history", "with_rest_cycle", "history_input",
-           "rest_start_meta", "started_stepper", "StartedStepper"]
+           "rest_start_meta", "started_stepper", "StartedStepper", "REST_PARAMETERS", "rest_values",
+           "start_from_values"]
 
 #: Duration of the rest cycle [s]: slow enough to be quasi-static for the
 #: rate-dependent models, short against the training records.
@@ -51,6 +52,32 @@ def rest_cycle(u_range, dt, T=REST_CYCLE_T) -> np.ndarray:
     L = max(int(round(T / dt)), 8)
     u0 = min(max(0.0, lo), hi)
     return u0 + (hi - u0) * 0.5 * (1.0 - np.cos(2.0 * np.pi * np.arange(1, L + 1) / L))
+
+
+#: The start as the FMUs' parameters (name, unit, description), values from :func:`rest_values`.
+REST_PARAMETERS = (
+    ("rest_lo", "V", "Rest cycle before t = 0: lower end of its range; the cycle runs from the point "
+                     "of [rest_lo, rest_hi] nearest 0 V up to rest_hi and back"),
+    ("rest_hi", "V", "Rest cycle before t = 0: upper end of its range (the top of the cycle)"),
+    ("rest_T", "s", "Rest cycle before t = 0: its duration; outputs count from its end (the sensor "
+                    "zeroed there). 0: start from rest, no cycle"),
+)
+
+
+def rest_values(model) -> tuple:
+    """(rest_lo [V], rest_hi [V], rest_T [s]) of the start a model records
+    (a model or its JSON dict); (0, 0, 0) for a start from rest."""
+    meta = model if isinstance(model, dict) else (getattr(model, "meta", None) or {})
+    st = meta.get("start") or {}
+    if "rest_cycle" not in st:
+        return (0.0, 0.0, 0.0)
+    lo, hi = (float(v) for v in st["rest_cycle"])
+    return (lo, hi, float(st.get("T", REST_CYCLE_T)))
+
+
+def start_from_values(lo, hi, T):
+    """The ``meta["start"]`` entry for :data:`REST_PARAMETERS` values (None for T = 0)."""
+    return rest_start_meta((lo, hi), T) if T > 0 else None
 
 
 def rest_start_meta(u_range, T=REST_CYCLE_T) -> dict:

@@ -43,6 +43,7 @@ from pathlib import Path
 from xml.etree.ElementTree import Element, SubElement, indent, tostring
 
 import fonbw
+from fonbw.compensate.rest import REST_PARAMETERS, rest_values
 
 __all__ = ["NATIVE_DIR", "NATIVE_NAMES", "PASS_NAMES", "PLATFORMS", "SIGNAL_NAME", "host_platform", "build_native",
            "build_native_one", "build_signal", "fmi_headers", "compilers", "run"]
@@ -124,19 +125,9 @@ def _model_config(res: dict) -> dict:
             "DEFAULT_UMIN": _c(lo), "DEFAULT_UMAX": _c(hi), "DEFAULT_K": str(int(p.get("K", fonbw.fractional.FAST_K))),
             "DEFAULT_M": str(int(p.get("M", fonbw.fractional.FAST_M))),
             "DEFAULT_L": str(int(p.get("L", fonbw.fractional.SHORT_L))),
-            "DEFAULT_ENGINE": str(ENGINE_CODES[memory]), "REST_CYCLE": _rest_cycle(res["model"])}
+            "DEFAULT_ENGINE": str(ENGINE_CODES[memory]), "REST_CYCLE": _carray(rest_values(res["model"]))}
 
 
-def _rest_cycle(model: dict) -> str:
-    """``{lo, hi, T}`` of the rest cycle the model records as its start
-    (:mod:`fonbw.compensate.rest`), ``{0, 0, 0}`` for a start from rest."""
-    from fonbw.compensate.rest import REST_CYCLE_T
-
-    st = model.get("start") or {}
-    if "rest_cycle" not in st:
-        return "{0.0, 0.0, 0.0}"
-    lo, hi = (float(v) for v in st["rest_cycle"])
-    return "{" + ", ".join(_c(v) for v in (lo, hi, float(st.get("T", REST_CYCLE_T)))) + "}"
 
 
 def _plant_config(res: dict) -> dict:
@@ -204,7 +195,8 @@ def config_header(kind: str, res: dict, guid: str, pass_through: bool = False) -
 
 _VR = {"in": 0, "out": 1, "kh": 2, "rho": 3, "sigma": 4, "n": 5, "lam1": 6, "lam2": 7, "dt": 8,
        "u_min": 9, "u_max": 10, "y": 11, "u_ff": 12, "kp": 13, "ki": 14, "kd": 15, "Tf": 16, "Tt": 17,
-       "ku": 20, "K": 40, "M": 41, "L": 42, "status": 43, "memory": 50, "integrator": 51,
+       "ku": 20, "K": 40, "M": 41, "L": 42, "status": 43, "rest_lo": 44, "rest_hi": 45, "rest_T": 46,
+       "memory": 50, "integrator": 51,
        "anti_windup": 52, "file": 60}
 _DT_DOC = "Internal fixed step; every communication step must be a whole multiple of it"
 
@@ -252,6 +244,8 @@ def _fonbw_variables(res: dict, kind: str) -> list:
              "Fast engine: number of geometric tail modes"),
             ("L", "Integer", _VR["L"], "parameter", "fixed", None, int(p.get("L", fonbw.fractional.SHORT_L)),
              "Short engine: window length (lags)")]
+    par += [(name, "Real", _VR[name], "parameter", "fixed", unit, v, doc)
+            for (name, unit, doc), v in zip(REST_PARAMETERS, rest_values(res["model"]))]
     if kind == "compensator":
         lo, hi = res["limits"]
         par += [("u_min", "Real", _VR["u_min"], "parameter", "fixed", "V", lo,

@@ -11,6 +11,8 @@ import os
 import tempfile
 from pathlib import Path
 
+from ..compensate import default_limits
+from ..compensate.rest import REST_PARAMETERS, rest_values
 from .controller import CONTROLLER_KEYS, plant_system
 
 __all__ = ["build_fmus", "build_native_fmus", "fmu_settings"]
@@ -110,6 +112,10 @@ def _fmu_parameters(role, cfg) -> dict:
         out.update({k: float(p[k]) for k in ("kh", "rho", "sigma", "n", "lam1", "lam2")})
         out["memory"] = str(p["memory"])
         out["dt"] = cfg["dt"]
+        # the model's start and (compensator) voltage range, as the library's blocks use them
+        out.update(zip((n for n, _, _ in REST_PARAMETERS), rest_values(m)))
+        if role == "comp":
+            out["u_min"], out["u_max"] = (float(v) for v in default_limits(m))
         return out
     if role == "ctrl":
         return {k: cfg["controller"][k] for k in CONTROLLER_KEYS}

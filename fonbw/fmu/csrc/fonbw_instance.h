@@ -34,7 +34,8 @@
 enum { VR_IN = 0, VR_OUT = 1, VR_KH = 2, VR_RHO = 3, VR_SIGMA = 4, VR_N = 5, VR_LAM1 = 6,
        VR_LAM2 = 7, VR_DT = 8, VR_UMIN = 9, VR_UMAX = 10, VR_Y = 11, VR_UFF = 12, VR_KP = 13,
        VR_KI = 14, VR_KD = 15, VR_TF = 16, VR_TT = 17, VR_KU = 20,
-       VR_K = 40, VR_M = 41, VR_L = 42, VR_STATUS = 43, VR_MEMORY = 50, VR_INTEGRATOR = 51,
+       VR_K = 40, VR_M = 41, VR_L = 42, VR_STATUS = 43, VR_REST_LO = 44,
+       VR_REST_HI = 45, VR_REST_T = 46, VR_MEMORY = 50, VR_INTEGRATOR = 51,
        VR_ANTI_WINDUP = 52, NVR = 53 };
 
 typedef enum { ST_INSTANTIATED = 1, ST_INIT = 2, ST_STEP = 4, ST_TERMINATED = 8, ST_ERROR = 16 } Phase;

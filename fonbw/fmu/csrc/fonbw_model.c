@@ -24,7 +24,8 @@ int inst_is_param(int vr) {
         vr == VR_ANTI_WINDUP) return 1;
 #elif MODEL_KIND != KIND_PLANT
     if ((vr >= VR_KH && vr <= VR_LAM2) || (vr >= VR_KU && vr < VR_KU + NKU) ||
-        vr == VR_K || vr == VR_M || vr == VR_L || vr == VR_MEMORY) return 1;
+        vr == VR_K || vr == VR_M || vr == VR_L || vr == VR_MEMORY ||
+        (vr >= VR_REST_LO && vr <= VR_REST_T)) return 1;
 #if MODEL_KIND == KIND_COMP
     if (vr == VR_UMIN || vr == VR_UMAX) return 1;
 #endif
@@ -33,7 +34,8 @@ int inst_is_param(int vr) {
 }
 
 int inst_is_real(int vr) {
-    return inst_is_input(vr) || vr == VR_OUT || (inst_is_param(vr) && vr < VR_K);
+    return inst_is_input(vr) || vr == VR_OUT ||
+           (inst_is_param(vr) && (vr < VR_K || (vr >= VR_REST_LO && vr <= VR_REST_T)));
 }
 
 int inst_is_int(int vr) {
@@ -78,6 +80,10 @@ void inst_set_defaults(Instance *c) {
     c->r[VR_UMIN] = DEFAULT_UMIN; c->r[VR_UMAX] = DEFAULT_UMAX;
     c->i[VR_K] = DEFAULT_K; c->i[VR_M] = DEFAULT_M; c->i[VR_L] = DEFAULT_L;
     c->engine = DEFAULT_ENGINE;
+    {
+        static const double rest[3] = REST_CYCLE;  /* the model's recorded start */
+        c->r[VR_REST_LO] = rest[0]; c->r[VR_REST_HI] = rest[1]; c->r[VR_REST_T] = rest[2];
+    }
 #endif
 }
 
@@ -93,10 +99,6 @@ void inst_free_model(Instance *c) {
 }
 
 #if MODEL_KIND != KIND_PLANT && MODEL_KIND != KIND_PID
-/* the model's recorded start {lo, hi, T}: a rest cycle run before t = 0, from
- * whose end the output is counted (T = 0: from rest) */
-static const double REST[3] = REST_CYCLE;
-
 static FonbwParams params_of(const Instance *c) {
     FonbwParams p;
     int k;
@@ -159,19 +161,27 @@ int inst_build_model(Instance *c) {
 #else
     {
         FonbwParams p = params_of(c);
+        /* the start: a rest cycle {lo, hi, T} run before t = 0, outputs counted from its end */
+        const double rest[3] = {c->r[VR_REST_LO], c->r[VR_REST_HI], c->r[VR_REST_T]};
         bad = fonbw_check(&p, dt, msg, sizeof msg);
+        if (!bad && !(isfinite(rest[2]) && rest[2] >= 0.0 &&
+                      (rest[2] == 0.0 || (isfinite(rest[0]) && isfinite(rest[1]) && rest[0] < rest[1])))) {
+            snprintf(msg, sizeof msg, "rest_T = %.17g s must be >= 0 (0: start from rest), and with a "
+                     "rest cycle rest_lo = %.17g V < rest_hi = %.17g V", rest[2], rest[0], rest[1]);
+            bad = msg;
+        }
 #if MODEL_KIND == KIND_COMP
         if (!bad && !(isfinite(c->r[VR_UMIN]) && isfinite(c->r[VR_UMAX]) && c->r[VR_UMIN] < c->r[VR_UMAX])) {
             snprintf(msg, sizeof msg, "u_min = %.17g V and u_max = %.17g V must be finite with u_min < u_max",
                      c->r[VR_UMIN], c->r[VR_UMAX]);
             bad = msg;
         }
-        if (!bad) rc = comp_init(&c->comp, &p, dt, c->r[VR_UMIN], c->r[VR_UMAX], REST);
+        if (!bad) rc = comp_init(&c->comp, &p, dt, c->r[VR_UMIN], c->r[VR_UMAX], rest);
 #else
         if (!bad) rc = fonbw_init(&c->hyst, &p, dt);
         c->hyst_y0 = 0.0;
-        if (!bad && rc == 0 && fonbw_rest_samples(REST[2], dt) > 0)
-            fonbw_rest_cycle(&c->hyst, REST[0], REST[1], fonbw_rest_samples(REST[2], dt), &c->hyst_y0);
+        if (!bad && rc == 0 && fonbw_rest_samples(rest[2], dt) > 0)
+            fonbw_rest_cycle(&c->hyst, rest[0], rest[1], fonbw_rest_samples(rest[2], dt), &c->hyst_y0);
 #endif
     }
 #endif
