@@ -160,3 +160,26 @@ def test_constrained_identification_recovers_an_invertible_truth():
     assert res.rms < 1.01 * noise
     inv = res.model.meta["invertibility"]
     assert inv["dt"] == 1e-4 and inv["margin"] >= 0.3 - 1e-9
+
+
+def test_started_stepper_is_the_batch_run_and_rolls_back():
+    from fonbw.compensate.rest import REST_PARAMETERS, rest_start_meta, rest_values, start_from_values, started_stepper
+
+    m = _minimum_phase()
+    assert type(started_stepper(m, DT)) is type(m.stepper(DT))  # no start recorded: the plain stepper
+    m.meta = {"u_range": [-10.0, 120.0], "start": rest_start_meta((-10.0, 120.0), T=0.1)}
+    st = started_stepper(m, DT)
+    u = 30 - 30 * np.cos(2 * np.pi * 7 * np.arange(400) * DT)
+    got = np.array([st.step(v) for v in u[:200]])
+    snap = st.get_state()
+    tail = np.array([st.step(v) for v in u[200:]])
+    st.set_state(snap)
+    assert np.array_equal([st.step(v) for v in u[200:]], tail) and st.steps == 400
+    pre = st.history
+    y = m.simulate(np.concatenate([pre, u]), DT)
+    assert np.max(np.abs(np.concatenate([got, tail]) - (y[pre.size:] - y[pre.size - 1]))) <= 1e-12
+    # the FMU parameters carry the same start, and back
+    vals = rest_values(m)
+    assert [n for n, _, _ in REST_PARAMETERS] == ["rest_lo", "rest_hi", "rest_T"]
+    assert vals == (-10.0, 120.0, 0.1) and start_from_values(*vals) == m.meta["start"]
+    assert rest_values(_minimum_phase()) == (0.0, 0.0, 0.0) and start_from_values(0.0, 0.0, 0.0) is None
