@@ -20,6 +20,8 @@ __all__ = ["gauss_newton_polish"]
 
 #: Forward-difference step in the unit cube (as the L-BFGS-B polish's 1e-6).
 STEP = 1e-6
+#: What a non-finite residual (a divergent simulation) counts as.
+DIVERGED = 1e150
 
 
 class _Spent(Exception):
@@ -60,7 +62,7 @@ def gauss_newton_polish(proj, box):
             used[0] += n
             with np.errstate(over="ignore", invalid="ignore"):
                 R = proj.residuals(box.to_natural(Z)) * scale
-            return np.where(np.isfinite(R), R, 1e150)
+            return np.where(np.isfinite(R), R, DIVERGED)
 
         def fun(z):
             z = np.clip(z, 0.0, 1.0)
@@ -77,6 +79,11 @@ def gauss_newton_polish(proj, box):
             # forward steps, turned inward at the upper bound
             h = np.where(z + STEP <= 1.0, STEP, -STEP)
             R = residuals(z[None, :] + np.diag(h), d)
+            # a step into a divergent region (non-finite residuals): step the other way
+            back = np.any(R >= DIVERGED, axis=1) & (h > 0) & (z - STEP >= 0.0)
+            if back.any():
+                h[back] = -STEP
+                R[back] = residuals(z[None, :] + np.diag(h)[back], int(back.sum()))
             return ((R - r0[None, :]) / h[:, None]).T
 
         try:
@@ -86,6 +93,10 @@ def gauss_newton_polish(proj, box):
                 least_squares(fun, z0, jac=jac, bounds=(0.0, 1.0), method="trf", x_scale="jac",
                               xtol=1e-10, ftol=1e-12, gtol=1e-12, max_nfev=max(1, budget))
         except _Spent:
+            pass
+        except (ValueError, np.linalg.LinAlgError):
+            # a Jacobian across a divergent region (residuals replaced by 1e150) can
+            # overflow trf's scaling into inf/NaN: keep the best point seen so far
             pass
         if not np.isfinite(cand[1]) or np.array_equal(cand[0], z0):
             return z0, float(f0), used[0]

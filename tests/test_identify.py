@@ -457,3 +457,32 @@ def test_fonbw_warm_started_from_an_nbw_is_never_worse_than_it():
     assert cold.rms > 1.05 * truth_rms
     with pytest.raises(ValueError, match="reparametrized"):
         identify(rec, "fonbw", max_evals=40, reparametrize=False, x0=nbw)
+
+
+def test_gauss_newton_polish_steps_around_a_divergent_region():
+    # Residuals that diverge (NaN) just past the start along one axis: the
+    # forward-difference Jacobian steps back instead, and the polish reaches
+    # the least-squares minimum (0.3, 0.6) rather than failing inside trf.
+    from fonbw.gnpolish import gauss_newton_polish
+
+    class Box:
+        def to_natural(self, Z):
+            return np.asarray(Z, float)
+
+    class Proj:
+        M = 2000
+        t = np.linspace(0.0, 1.0, M)
+
+        def residuals(self, X):
+            X = np.atleast_2d(X)
+            R = (X[:, :1] - 0.3) * np.sin(7 * self.t) + (X[:, 1:2] - 0.6) ** 2 * self.t
+            R[X[:, 0] > 0.45] = np.nan
+            return R
+
+        def __call__(self, X):
+            return np.sqrt(np.mean(self.residuals(X) ** 2, axis=1))
+
+    z0 = np.array([0.45 - 5e-7, 0.9])
+    f0 = float(Proj()(z0[None])[0])
+    z, f, used = gauss_newton_polish(Proj(), Box())(z0, f0, 200)
+    assert f < 1e-8 * f0 and np.allclose(z, [0.3, 0.6], atol=1e-4) and used <= 200
