@@ -213,7 +213,10 @@ def run_scenario(seed, budget, options=None):
         row.update(_verdict(res))
     except Exception as exc:  # keep the run going; the summary counts failures
         row["error"] = f"{type(exc).__name__}: {exc}"
-    vals, new = _oracles(seed, sc, opt)
+    try:
+        vals, new = _oracles(seed, sc, opt)
+    except Exception as exc:  # an oracle that fails must not end the run either
+        vals, new = {"oracle_error": f"{type(exc).__name__}: {exc}"}, {}
     row.update(vals)
     row["total_s"] = time.perf_counter() - t0
     row["oracle_cache"] = new

@@ -441,3 +441,19 @@ def test_result_object_reads_as_its_json():
     assert (res.effects, res.gap_closed, res.unexplained, res.message) == (["delay"], 0.9, False, "explained by delay")
     with pytest.raises(KeyError):
         res["model"]
+
+
+def test_a_nominal_that_diverges_is_refused_naming_the_record():
+    # A Bouc-Wen with sigma < 1/2 can diverge on a record faster than the training
+    # samples: the diagnosis refuses with the record's name, not a numerics traceback.
+    from types import SimpleNamespace
+
+    from fonbw.gap.attribute import Diagnosis
+
+    stub = SimpleNamespace(nominal=SimpleNamespace(params={"sigma": 3e-4, "n": 2.15}))
+    rec = lambda name: SimpleNamespace(path=name)
+    ok = np.zeros(5)
+    Diagnosis._check_finite(stub, [rec("a.csv")], [ok], [rec("b.csv")], [ok])
+    with pytest.raises(ValueError, match=r"diverges on the validation record fast\.csv"):
+        Diagnosis._check_finite(stub, [rec("a.csv")], [ok], [rec("b.csv"), rec("fast.csv")],
+                                [ok, np.array([0.0, np.nan])])

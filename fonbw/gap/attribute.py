@@ -240,6 +240,25 @@ class Diagnosis:
         self.yref_c = [y[::self.q] for y in self.yref_tr]
         self.yref_va = [self.nominal.simulate(r.u, dt) for r in val]
         self.p0_va = self.cut_va(self.fitter.predict(val, fit, [], [np.zeros(len(r.u)) for r in val]))
+        self._check_finite(train, self.yref_tr, val, self.p0_va)
+
+    def _check_finite(self, train, p_tr, val, p_va):
+        """Refuse, naming the record, a nominal whose prediction is not finite.
+
+        A Bouc-Wen with σ < 1/2 has no bounded state for every input: one
+        identified on the coarse training samples can still diverge on a
+        faster record (or the lead-in of one that starts mid-drive).
+        """
+        for kind, recs, preds in (("training", train, p_tr), ("validation", val, p_va)):
+            for r, p in zip(recs, preds):
+                if not np.all(np.isfinite(p)):
+                    pr = self.nominal.params
+                    raise ValueError(
+                        f"diagnose: the nominal FONBW identified on the training records (sigma = "
+                        f"{pr['sigma']:.3g}, n = {pr['n']:.3g}) diverges on the {kind} record "
+                        f"{getattr(r, 'path', '?')}: a Bouc-Wen model with sigma < 1/2 has no bounded "
+                        "state for every input. Give a nominal model (model=) or training records that "
+                        "cover this record's rates and range")
 
     def cut_va(self, preds):
         """Validation predictions without each record's burn-in (what is scored)."""
