@@ -185,7 +185,8 @@ def identify_paths(paths, options, *, progress: bool = False, workers: int | Non
     digest = records_digest(paths, options)
     burn_in = burn_ins(recs, say)
     if options.get("rest_cycle"):
-        recs, burn_in = _after_rest_cycle(recs, burn_in)
+        u_range = _u_range(recs)
+        recs, burn_in = _after_rest_cycle(recs, burn_in, u_range)
     kw = identify_kwargs(options, burn_in, progress=progress, workers=workers)
     if announce is not None:
         announce(recs, kw)
@@ -193,7 +194,7 @@ def identify_paths(paths, options, *, progress: bool = False, workers: int | Non
     if options.get("rest_cycle") and res.message != "interrupted":
         from ..compensate.rest import rest_start_meta
 
-        res.model.meta = {**(getattr(res.model, "meta", None) or {}), "start": rest_start_meta(_u_range(recs))}
+        res.model.meta = {**(getattr(res.model, "meta", None) or {}), "start": rest_start_meta(u_range)}
     doc = {} if res.message == "interrupted" else model_document(res, paths, options, digest)
     return Fit(result=res, records=recs, burn_in=burn_in, document=doc)
 
@@ -202,13 +203,13 @@ def _u_range(recs):
     return (min(float(r.u.min()) for r in recs), max(float(r.u.max()) for r in recs))
 
 
-def _after_rest_cycle(recs, burn_in):
-    """The records behind a rest cycle over their input range
+def _after_rest_cycle(recs, burn_in, u_range):
+    """The records behind a rest cycle over `u_range` [V]
     (:func:`fonbw.compensate.rest.with_rest_cycle`), the cycle added to each
     burn-in: the stage was zeroed at rest after a previous drive cycle."""
     from ..compensate.rest import with_rest_cycle
 
-    cycled, pre = with_rest_cycle(recs, _u_range(recs))
+    cycled, pre = with_rest_cycle(recs, u_range)
     return cycled, [p + b for p, b in zip(pre, burn_in)]
 
 
