@@ -148,6 +148,10 @@ def use_bundled_fonbw(resources: str) -> Optional[str]:
     return path
 
 
+#: Longest rest cycle an FMU runs at initialization [internal steps] (as the native FMUs).
+REST_MAX_STEPS = 1e8
+
+
 class UReal(Real):
     """pythonfmu Real with a unit, and a start value written so that it reads
     back bit for bit (repr, 17 significant digits when needed; pythonfmu's own
@@ -477,6 +481,7 @@ class FonbwModelSlave(FonbwSlaveBase):
                                "history + geometric tail modes), exact (full history, O(k) "
                                "per step), short (short-memory window, inaccurate), "
                                "oustaloup (refined Oustaloup filter of the paper's toolbox)")
+        use_bundled_fonbw(self.resources)  # before the first `import fonbw`
         from fonbw.compensate.rest import REST_PARAMETERS, rest_values  # bundled copy
         for (name, unit, doc), v in zip(REST_PARAMETERS, rest_values(res["model"])):
             self._parameter(name, v, unit, doc)
@@ -508,6 +513,8 @@ class FonbwModelSlave(FonbwSlaveBase):
                                                                 and lo < hi))):
             problems.append(f"rest_T = {T!r} s must be >= 0 (0: start from rest), and with a rest cycle "
                             f"rest_lo = {lo!r} V < rest_hi = {hi!r} V")
+        elif T > 0.0 and isinstance(self.dt, float) and self.dt > 0.0 and T / self.dt > REST_MAX_STEPS:
+            problems.append(f"rest_T = {T!r} s is more than {REST_MAX_STEPS:g} steps of dt")
         if self.memory not in MEMORY_ENGINES:
             problems.append(f"memory = {self.memory!r} is not one of {', '.join(MEMORY_ENGINES)}")
         return problems

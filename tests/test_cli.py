@@ -184,6 +184,18 @@ def test_rest_cycle_start_identified_recorded_and_validated(tmp_path):
     assert r.returncode == 0, r.stderr
     doc = json.loads(out.read_text())
     assert doc["start"] == {"rest_cycle": [0.0, 120.0], "T": 1.0} and doc["fit"]["options"]["rest_cycle"]
+    # simulate runs the start too
+    write_csv(tmp_path / "u.csv", {"t": t, "u": u})
+    r = run("simulate", tmp_path / "started.json", tmp_path / "u.csv", "-o", tmp_path / "sim.csv")
+    assert r.returncode == 0, r.stderr
+    assert np.max(np.abs(read_record(tmp_path / "sim.csv").y - y)) < 1e-9
+    # a record that starts mid-drive is refused: the cycle would end at rest, the record does not start there
+    um = 60 + 50 * np.sin(2 * np.pi * 2 * t)
+    write_csv(tmp_path / "mid.csv", {"t": t, "u": um, "y": truth.simulate(um, dt)})
+    r = run("identify", tmp_path / "mid.csv", "--model", "nbw", "--rest-cycle", "--max-evals", "60", "-q",
+            "-o", tmp_path / "mid.json")
+    assert r.returncode == 2 and "--rest-cycle needs records that start at rest" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr and not (tmp_path / "mid.json").exists()
 
 
 def _popen(args, env=None, umask=None):

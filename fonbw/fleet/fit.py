@@ -91,7 +91,10 @@ def fit_options(ns) -> dict:
         opts["for_compensation"] = float(dtc)
     opts["u_scale"], opts["y_scale"] = float(opts["u_scale"]), float(opts["y_scale"])
     opts["resample"], opts["keep_offset"] = bool(opts["resample"]), bool(opts["keep_offset"])
-    opts["rest_cycle"] = bool(opts["rest_cycle"])
+    if opts["rest_cycle"]:
+        opts["rest_cycle"] = True
+    else:  # the default leaves the options (and the digests of earlier fits) as they were
+        del opts["rest_cycle"]
     return opts
 
 
@@ -185,13 +188,20 @@ def identify_paths(paths, options, *, progress: bool = False, workers: int | Non
     digest = records_digest(paths, options)
     burn_in = burn_ins(recs, say)
     if options.get("rest_cycle"):
+        late = [r.path for r, b in zip(recs, burn_in) if b > 0]
+        if late:
+            from ..cli.records import CLIError
+
+            raise CLIError(f"--rest-cycle needs records that start at rest after a drive cycle; "
+                           f"{', '.join(map(str, late))} start(s) mid-drive (drop --rest-cycle: such "
+                           "records get a burn-in instead)")
         u_range = _u_range(recs)
         recs, burn_in = _after_rest_cycle(recs, burn_in, u_range)
     kw = identify_kwargs(options, burn_in, progress=progress, workers=workers)
     if announce is not None:
         announce(recs, kw)
     res = identify(recs, **kw)
-    if options.get("rest_cycle") and res.message != "interrupted":
+    if options.get("rest_cycle") and res.model is not None:  # the partial model too
         from ..compensate.rest import rest_start_meta
 
         res.model.meta = {**(getattr(res.model, "meta", None) or {}), "start": rest_start_meta(u_range)}

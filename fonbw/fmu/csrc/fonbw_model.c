@@ -169,6 +169,9 @@ int inst_build_model(Instance *c) {
             snprintf(msg, sizeof msg, "rest_T = %.17g s must be >= 0 (0: start from rest), and with a "
                      "rest cycle rest_lo = %.17g V < rest_hi = %.17g V", rest[2], rest[0], rest[1]);
             bad = msg;
+        } else if (!bad && rest[2] / dt > 1e8) {  /* a cycle run at initialization, not a hang */
+            snprintf(msg, sizeof msg, "rest_T = %.17g s is more than 1e8 steps of dt", rest[2]);
+            bad = msg;
         }
 #if MODEL_KIND == KIND_COMP
         if (!bad && !(isfinite(c->r[VR_UMIN]) && isfinite(c->r[VR_UMAX]) && c->r[VR_UMIN] < c->r[VR_UMAX])) {
