@@ -148,10 +148,6 @@ def use_bundled_fonbw(resources: str) -> Optional[str]:
     return path
 
 
-#: Longest rest cycle an FMU runs at initialization [internal steps] (as the native FMUs).
-REST_MAX_STEPS = 1e8
-
-
 class UReal(Real):
     """pythonfmu Real with a unit, and a start value written so that it reads
     back bit for bit (repr, 17 significant digits when needed; pythonfmu's own
@@ -508,6 +504,8 @@ class FonbwModelSlave(FonbwSlaveBase):
             v = kw[k]
             if math.isfinite(v) and not (0.0 < v <= 1.0):
                 problems.append(f"{k} = {v!r} must lie in (0, 1]")
+        from fonbw.compensate.rest import REST_MAX_STEPS  # bundled copy (put first at instantiation)
+
         lo, hi, T = self.rest_lo, self.rest_hi, self.rest_T
         if not (math.isfinite(T) and T >= 0.0 and (T == 0.0 or (math.isfinite(lo) and math.isfinite(hi)
                                                                 and lo < hi))):

@@ -409,9 +409,10 @@ def annotate_result(result, recs, for_compensation=None, gain_ref=None):
     """Record the training input range on the identified model and, with
     ``for_compensation`` (the compensator's step [s]), the one-step slope over
     the training states (both branches) on the result and the model."""
+    from .io import input_range
+
     model = result.model
-    lo = min(float(np.min(u)) for u, _, _ in recs)
-    hi = max(float(np.max(u)) for u, _, _ in recs)
+    lo, hi = input_range([u for u, _, _ in recs])
     meta = dict(getattr(model, "meta", None) or {})
     meta["u_range"] = [lo, hi]
     if for_compensation is not None:

@@ -130,6 +130,12 @@ def as_signal(x, what: str, empty_ok: bool = True) -> np.ndarray:
     return a
 
 
+def input_range(records) -> tuple[float, float]:
+    """(lowest, highest) input voltage [V] over `records` (records or input arrays)."""
+    us = [np.asarray(getattr(r, "u", r)) for r in records]
+    return min(float(np.min(u)) for u in us), max(float(np.max(u)) for u in us)
+
+
 def decimate(rec: Record, q: int) -> Record:
     """Every q-th sample of a record (u is a zero-order-hold input; y is already
     low-pass filtered by the sensor, so no anti-alias filter is added)."""

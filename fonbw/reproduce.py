@@ -24,7 +24,7 @@ from .bench import Bench
 from .compensate import DEFAULT_LIMITS, OK, check_model, compensate
 from .paper import PAPER_TABLE2, PAPER_TABLE4, SINE_FREQS
 from .signals import TRAJECTORIES, eq19_input, multi_input, sine_input
-from .io import Record, atomic_open, decimate
+from .io import Record, atomic_open, decimate, input_range
 
 __all__ = ["identify_models", "table1", "table2", "table3", "reproduce", "KIND_LABELS",
            "table4", "format_table4", "reproduce_table4", "table4_training", "table4_models",
@@ -504,8 +504,7 @@ def table4_models(dt, *, seed=0, max_evals=3000, workers=None, progress=False,
     from .identify import identify
 
     recs = table4_training(seed) if records is None else records
-    lo = min(float(np.min(r.u)) for r in recs)
-    hi = max(float(np.max(r.u)) for r in recs)
+    lo, hi = input_range(recs)
     cycled, burn = with_rest_cycle(recs, (lo, hi))
     models, fits = {}, {}
     # the NBW first: it warm-starts the FONBW (the FONBW with λ1 = λ2 = 1), so

@@ -145,6 +145,11 @@ def test_compensator_runs_the_recorded_rest_cycle(tmp_path):
     got = _run_fmpy(f, hd)
     assert np.max(np.abs(got - u_ref)) <= 1e-11 * np.max(np.abs(u_ref))
     assert np.max(np.abs(u_rest - u_ref)) > 1.0  # the start matters: the test can tell
+    # a cycle longer than REST_MAX_STEPS steps is refused at initialization, not run
+    from fmpy.fmi1 import FMICallException  # raised by FMU2Slave on an fmi2Error
+
+    with pytest.raises(FMICallException, match="fmi2ExitInitializationMode"):
+        _run_fmpy(f, hd[:5], params={"rest_T": 1e5})  # 1e9 steps of 1e-4 s
     # the hysteresis FMU runs the same start: the model behind its cycle, counted from its end
     from fonbw.compensate.rest import started_stepper
 

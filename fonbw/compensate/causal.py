@@ -14,6 +14,7 @@ import numpy as np
 from .. import hysteresis as _hy
 from ..io import as_signal
 from ..paper import U_RANGE
+from .rest import run_start
 from .kernels import (NOT_CONVERGED, OK, SAT_HIGH, SAT_LOW, _run_cbw, _run_fonbw, _run_zhu, _run_zhu22,
                       _step_cbw, _step_fonbw, _step_zhu, _step_zhu22)
 
@@ -436,9 +437,7 @@ class Compensator:
         self._st = self.model.stepper(self.dt)
         self._growable = any(op.growable for op in getattr(self._st, "ops", ()))
         # the history (rest cycle) first; outputs count from its end
-        self._y0 = 0.0
-        for uh in self.history:
-            self._y0 = self._st.step(uh)
+        self._y0 = run_start(self._st, self.history)
         u_rest = self.history[-1] if self.history.size else min(max(0.0, self.limits[0]), self.limits[1])
         self._ctl = np.array([u_rest, math.nan])
         self.steps = 0

@@ -29,7 +29,7 @@ import numpy as np
 
 __all__ = ["REST_CYCLE_T", "rest_cycle", "start_history", "with_rest_cycle", "history_input",
            "rest_start_meta", "started_stepper", "StartedStepper", "REST_PARAMETERS", "rest_values",
-           "start_from_values"]
+           "start_from_values", "run_start", "REST_MAX_STEPS"]
 
 #: Duration of the rest cycle [s]: slow enough to be quasi-static for the
 #: rate-dependent models, short against the training records.
@@ -95,6 +95,19 @@ def start_history(model, dt) -> np.ndarray:
     return rest_cycle(st["rest_cycle"], dt, st.get("T", REST_CYCLE_T))
 
 
+#: Longest rest cycle a stepper or FMU runs at its start [steps] (a cycle, not a hang).
+REST_MAX_STEPS = 1e8
+
+
+def run_start(stepper, history) -> float:
+    """Step `stepper` through the voltages `history` [V]; its output [µm] at
+    the end (0 for none), the zero a started model counts from."""
+    y0 = 0.0
+    for u in history:
+        y0 = stepper.step(u)
+    return float(y0)
+
+
 class StartedStepper:
     """A model's stepper that has run the model's recorded start.
 
@@ -112,10 +125,7 @@ class StartedStepper:
 
     def reset(self) -> None:
         self._st.reset()
-        y0 = 0.0
-        for u in self.history:
-            y0 = self._st.step(u)
-        self.zero = float(y0)
+        self.zero = run_start(self._st, self.history)
         self._steps = 0
 
     def step(self, u: float) -> float:
@@ -185,10 +195,10 @@ def with_rest_cycle(records, u_range=None, T=REST_CYCLE_T):
         For :func:`fonbw.identify` with ``burn_in=``: the cycle's samples are
         not scored and each record gets its own zero (the fitted offset).
     """
-    from ..io import Record
+    from ..io import Record, input_range
 
     if u_range is None:
-        u_range = (min(float(np.min(r.u)) for r in records), max(float(np.max(r.u)) for r in records))
+        u_range = input_range(records)
     out, burn = [], []
     for r in records:
         pre = rest_cycle(u_range, r.dt, T)

@@ -180,6 +180,7 @@ def identify_paths(paths, options, *, progress: bool = False, workers: int | Non
         was interrupted: an interrupted model is not the one these options give).
     """
     from ..cli.records import read_records, say
+    from ..io import input_range
     from ..start import burn_ins
     from ..identify import identify
 
@@ -195,7 +196,7 @@ def identify_paths(paths, options, *, progress: bool = False, workers: int | Non
             raise CLIError(f"--rest-cycle needs records that start at rest after a drive cycle; "
                            f"{', '.join(map(str, late))} start(s) mid-drive (drop --rest-cycle: such "
                            "records get a burn-in instead)")
-        u_range = _u_range(recs)
+        u_range = input_range(recs)
         recs, burn_in = _after_rest_cycle(recs, burn_in, u_range)
     kw = identify_kwargs(options, burn_in, progress=progress, workers=workers)
     if announce is not None:
@@ -207,10 +208,6 @@ def identify_paths(paths, options, *, progress: bool = False, workers: int | Non
         res.model.meta = {**(getattr(res.model, "meta", None) or {}), "start": rest_start_meta(u_range)}
     doc = {} if res.message == "interrupted" else model_document(res, paths, options, digest)
     return Fit(result=res, records=recs, burn_in=burn_in, document=doc)
-
-
-def _u_range(recs):
-    return (min(float(r.u.min()) for r in recs), max(float(r.u.max()) for r in recs))
 
 
 def _after_rest_cycle(recs, burn_in, u_range):

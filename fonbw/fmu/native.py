@@ -43,7 +43,7 @@ from pathlib import Path
 from xml.etree.ElementTree import Element, SubElement, indent, tostring
 
 import fonbw
-from fonbw.compensate.rest import REST_PARAMETERS, rest_values
+from fonbw.compensate.rest import REST_MAX_STEPS, REST_PARAMETERS, rest_values
 
 __all__ = ["NATIVE_DIR", "NATIVE_NAMES", "PASS_NAMES", "PLATFORMS", "SIGNAL_NAME", "host_platform", "build_native",
            "build_native_one", "build_signal", "fmi_headers", "compilers", "run"]
@@ -125,7 +125,8 @@ def _model_config(res: dict) -> dict:
             "DEFAULT_UMIN": _c(lo), "DEFAULT_UMAX": _c(hi), "DEFAULT_K": str(int(p.get("K", fonbw.fractional.FAST_K))),
             "DEFAULT_M": str(int(p.get("M", fonbw.fractional.FAST_M))),
             "DEFAULT_L": str(int(p.get("L", fonbw.fractional.SHORT_L))),
-            "DEFAULT_ENGINE": str(ENGINE_CODES[memory]), "REST_CYCLE": _carray(rest_values(res["model"]))}
+            "DEFAULT_ENGINE": str(ENGINE_CODES[memory]), "REST_CYCLE": _carray(rest_values(res["model"])),
+            "REST_MAX_STEPS": _c(REST_MAX_STEPS)}
 
 
 

@@ -169,8 +169,9 @@ int inst_build_model(Instance *c) {
             snprintf(msg, sizeof msg, "rest_T = %.17g s must be >= 0 (0: start from rest), and with a "
                      "rest cycle rest_lo = %.17g V < rest_hi = %.17g V", rest[2], rest[0], rest[1]);
             bad = msg;
-        } else if (!bad && rest[2] / dt > 1e8) {  /* a cycle run at initialization, not a hang */
-            snprintf(msg, sizeof msg, "rest_T = %.17g s is more than 1e8 steps of dt", rest[2]);
+        } else if (!bad && rest[2] / dt > REST_MAX_STEPS) {  /* a cycle run at initialization, not a hang */
+            snprintf(msg, sizeof msg, "rest_T = %.17g s is more than %g steps of dt", rest[2],
+                     (double)REST_MAX_STEPS);
             bad = msg;
         }
 #if MODEL_KIND == KIND_COMP
