@@ -201,3 +201,56 @@ def test_pi_core_with_creep_names_the_form_and_creep():
     assert v["form"]["material"] and v["effects"] == ["creep"]
     assert v["form"]["gap_closed"] > 0.9 and v["gap_closed"] > 0.95
     assert [w["step"] for w in v["waterfall"]] == ["nominal", "form", "+creep", "noise floor"]
+
+
+def _loro_by_hand(Phi, D, y, lens):
+    # the reference as one column (its output with the weights fitted on
+    # every record) under a free gain, refit with the effect's gains on the
+    # other record; MSE on the held-out record's common span
+    b1 = np.linalg.lstsq(np.column_stack([Phi, D]), y, rcond=None)[0]
+    b0 = np.linalg.lstsq(Phi, y, rcond=None)[0]
+    A1 = np.column_stack([Phi @ b1[:Phi.shape[1]], D])
+    A0 = (Phi @ b0)[:, None]
+    edges = np.cumsum([0] + lens)
+    tot = [0.0, 0.0]
+    for i in range(2):
+        held = np.arange(edges[i], edges[i] + min(lens))
+        other = np.r_[edges[1 - i]:edges[2 - i]]
+        yo = y[other]
+        held = held[(y[held] >= yo.min()) & (y[held] <= yo.max())]
+        for k, A in enumerate((A0, A1)):
+            g = np.linalg.lstsq(A[other], yo, rcond=None)[0]
+            e = y[held] - A[held] @ g
+            tot[k] += e @ e
+    return tot[1] / tot[0]
+
+
+@pytest.mark.parametrize("drift_um", [0.3, 0.0])
+def test_loro_on_the_reference_core_refits_only_the_effect(drift_um):
+    from fonbw.gap import checks
+    from fonbw.gap import effects as fx
+    from fonbw.gap.cores import ReferenceCore
+    from fonbw.gap.fitter import Fitter
+    from fonbw.gap.reference import ReferenceHysteresis
+
+    recs = []
+    for r in _pi_records():
+        s = np.arange(len(r.u)) * r.dt / fx.Drift.T0
+        recs.append(Record.from_arrays(u=r.u, y=r.y + drift_um * (s + 0.5 * s * s), dt=r.dt, path=r.path))
+    ref = ReferenceHysteresis(n_plays=8, rate=None).with_range(recs)
+    f = Fitter(recs, core=ReferenceCore(ref))
+    zero = [np.zeros(len(r.u)) for r in recs]
+    base = f.refit([], np.zeros(0), [], zero, evals=0)
+    eff = [fx.Drift()]
+    fit = f.refit(eff, np.zeros(0), [np.zeros(0)], zero, evals=0)
+    out = checks.loro(f, base, fit, [], eff, zero)
+    Phi = np.concatenate([ref.columns(r.u, r.dt) for r in recs])
+    D = np.concatenate([np.column_stack([s, s * s]) for s in
+                        (np.arange(len(r.u)) * r.dt / fx.Drift.T0 for r in recs)])
+    y = np.concatenate([r.y for r in recs])
+    want = _loro_by_hand(Phi, D, y, [len(r.u) for r in recs])
+    assert out["pooled_ratio"] == pytest.approx(want, rel=1e-5)
+    if drift_um:
+        assert out["pooled_ratio"] < 0.2
+    else:
+        assert out["pooled_ratio"] > 0.98
