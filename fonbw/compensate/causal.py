@@ -147,12 +147,20 @@ def _hd(Hd):
 
 
 def _history(model, dt, history, form="discrete"):
-    """The voltage [V] run before t = 0 (:func:`fonbw.compensate.rest.history_input`);
-    none for the Zhu model, whose x0 is its zero already."""
+    """The voltage [V] run before t = 0 (:func:`fonbw.compensate.rest.history_input`).
+
+    The Zhu model runs its start like the others (``validate`` scores it
+    after its rest cycle, zeroed at the end of it), except in the eq.-22
+    form: that form solves a force balance written on H_d's derivatives
+    from rest, which a displacement zero set after a cycle does not fit.
+    """
     from .rest import history_input
-    if isinstance(model, _hy.Zhu2016) or form == "eq22":
+    if form == "eq22":
         if history is not None and len(history):
-            raise ValueError("history is not defined for the Zhu2016 model")
+            raise ValueError("history is not defined for the eq.-22 form of the Zhu2016 model")
+        if history is None and history_input(model, dt, None).size:
+            warnings.warn("the eq.-22 form runs from rest: the model's rest cycle (meta['start']) is not "
+                          "run; use form='discrete' to compensate from it", RuntimeWarning, stacklevel=3)
         return np.zeros(0)
     return history_input(model, dt, history)
 
