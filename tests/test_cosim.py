@@ -338,3 +338,22 @@ def test_concurrent_unzips_share_one_complete_folder(loop_fmus_dir, tmp_path):
     d = dirs.pop()
     assert (d / "modelDescription.xml").is_file() and (d / "binaries" / "linux64").is_dir()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["FonbwHysteresis.fmu", "FonbwHysteresis.unzipped"]
+
+
+def test_linear_gain_runs_the_model_start_over_its_range():
+    from fonbw.compensate.rest import rest_cycle, rest_start_meta
+
+    m = fonbw.load_model(DEFAULT_MODEL)
+    # no range, no start: the ramp 0 -> 120 V from the virgin state
+    u = np.linspace(0.0, 120.0, int(round(1.0 / DT)))
+    assert loop.linear_gain(m, DT) == pytest.approx(m.simulate(u, DT)[-1] / 120.0, rel=1e-12)
+    # a bipolar stage behind its rest cycle: 0 -> 90 V after the cycle, by hand
+    m.meta = {"u_range": [-90.0, 90.0], "start": rest_start_meta((-90.0, 90.0), T=0.1)}
+    pre = rest_cycle((-90.0, 90.0), DT, T=0.1)
+    u = np.linspace(0.0, 90.0, int(round(1.0 / DT)))
+    y = m.simulate(np.concatenate([pre, u]), DT)[pre.size:]
+    k = loop.linear_gain(m, DT)
+    assert k == pytest.approx((y[-1] - y[0]) / 90.0, rel=1e-12)
+    assert abs(k - m.simulate(u, DT)[-1] / 90.0) > 1e-3 * abs(k)
+    with pytest.raises(ValueError, match="no rise"):
+        loop.linear_gain(m, DT, u_range=(-90.0, 0.0))

@@ -51,13 +51,28 @@ def plant_system(kind="dynamics"):
     return ct.series(creep, mech)
 
 
-def linear_gain(model, dt=DT, u_max=U_LIMITS[1]) -> float:
-    """Mean slope of a hysteresis model [µm/V]: its output after a 1 s ramp
-    0 -> `u_max` [V], divided by `u_max` (what an uncompensated open loop
-    uses); `dt` [s] is the simulation step."""
-    n = max(int(round(1.0 / dt)), 2)
-    u = np.linspace(0.0, float(u_max), n)
-    return float(model.simulate(u, dt)[-1] / u_max)
+def linear_gain(model, dt=DT, u_range=None) -> float:
+    """Mean slope of a hysteresis model [µm/V] (what an uncompensated open
+    loop uses): its rise over a 1 s ramp from rest (the point of `u_range`
+    nearest 0 V) to the top of `u_range` [V], divided by the ramp's span.
+
+    The ramp runs from the model's recorded start (its rest cycle, as
+    ``validate`` and the loop's actuator run it); `u_range` defaults to the
+    model's training input range (:func:`fonbw.compensate.default_limits`),
+    else 0–120 V. `dt` [s] is the simulation step.
+    """
+    from ..compensate import default_limits
+    from ..objective import simulate_record
+
+    lo, hi = (float(a) for a in (default_limits(model) if u_range is None else u_range))
+    if not hi > lo:
+        raise ValueError(f"linear_gain: u_range must be (low, high) with low < high [V], got {(lo, hi)}")
+    rest = min(max(0.0, lo), hi)
+    if not hi > rest:
+        raise ValueError(f"linear_gain: the range {(lo, hi)} V has no rise above its rest voltage {rest} V")
+    u = np.linspace(rest, hi, max(int(round(1.0 / dt)), 2))
+    y = simulate_record(model, u, dt)
+    return float((y[-1] - y[0]) / (hi - rest))
 
 
 def controller_spec(kp, ki=0.0, kd=0.0, dt=DT, u_min=U_LIMITS[0], u_max=U_LIMITS[1], Tf=None,
