@@ -207,7 +207,7 @@ def test_signal_fmu_plays_its_table(tmp_path):
     md = read_model_description(str(fmu))
     with zipfile.ZipFile(fmu) as z:
         listed = re.findall(r'<File name="([^"]+)"', z.read("modelDescription.xml").decode())
-        assert listed == ["fonbw_signal.c"] and "sources/fonbw_signal.c" in z.namelist()
+        assert listed == list(native.C_SOURCES) and "sources/fonbw_table.c" in z.namelist()
     rng = np.random.default_rng(7)
     x = rng.standard_normal(300) * 10.0 ** rng.integers(-12, 12, 300)
     table = tmp_path / "x.txt"
@@ -227,6 +227,14 @@ def test_signal_fmu_plays_its_table(tmp_path):
         return s
 
     s = start(table)
+    assert s.getString([vr["file"]]) == [str(table).encode()]
+    # a reset forgets the table and the file; initialized again it plays from the start
+    s.reset()
+    assert s.getString([vr["file"]]) == [b""]
+    s.setupExperiment(startTime=0.0)
+    s.setString([vr["file"]], [str(table)])
+    s.enterInitializationMode()
+    s.exitInitializationMode()
     got = [s.getReal([vr["y"]])[0]]
     t = 0.0
     for h in [DT] * 200 + [2 * DT] * 60:  # a step of 2 dt advances two samples

@@ -51,10 +51,8 @@ __all__ = ["NATIVE_DIR", "NATIVE_NAMES", "PASS_NAMES", "PLATFORMS", "SIGNAL_NAME
 #: The C sources (package data).
 NATIVE_DIR = Path(__file__).resolve().parent / "csrc"
 C_SOURCES = ("fonbw_fmi2.c", "fonbw_model.c", "fonbw_numerics.c", "fonbw_compensator.c", "fonbw_plant.c",
-             "fonbw_pid.c")
+             "fonbw_pid.c", "fonbw_table.c")
 HEADERS = ("fonbw_instance.h", "fonbw_numerics.h")
-#: The signal FMU is one self-contained source.
-SIGNAL_SOURCES = ("fonbw_signal.c",)
 SIGNAL_NAME = "FonbwSignalNative"
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 #: Model identifier of each kind (distinct from the pythonfmu FMUs').
@@ -64,7 +62,7 @@ NATIVE_NAMES = {"hysteresis": "FonbwHysteresisNative", "compensator": "FonbwComp
 PASS_NAMES = {k: v.replace("Fonbw", "FonbwPass", 1) for k, v in NATIVE_NAMES.items()}
 #: Kinds that ``fonbw build-fmu --native`` builds by default.
 DEFAULT_NATIVE_KINDS = ("hysteresis", "compensator", "plant")
-KIND_CODES = {"hysteresis": 1, "compensator": 2, "plant": 3, "pid": 4}
+KIND_CODES = {"hysteresis": 1, "compensator": 2, "plant": 3, "pid": 4, "signal": 5}
 INTEGRATOR_CODES = {"forward": 0, "backward": 1, "tustin": 2}
 ANTI_WINDUP_CODES = {"back-calculation": 0, "clamping": 1, "none": 2}
 #: Platform folder -> (compiler, shared-library suffix, extra flags).
@@ -143,6 +141,11 @@ def _plant_config(res: dict) -> dict:
             "DEFAULT_DT": _c(res["dt"])}
 
 
+def _signal_config(res: dict) -> dict:
+    """Start value of the signal's sample step [s]."""
+    return {"DEFAULT_DT": _c(res["dt"])}
+
+
 def _pid_config(res: dict) -> dict:
     """Start values of the PID from a controller spec
     (:func:`fonbw.loop.controller_spec`)."""
@@ -157,8 +160,9 @@ def _pid_config(res: dict) -> dict:
 
 
 def _sources(kind: str) -> tuple:
-    """(C sources, headers) of an FMU of `kind`."""
-    return (SIGNAL_SOURCES, ()) if kind == "signal" else (C_SOURCES, HEADERS)
+    """(C sources, headers) of an FMU of `kind`: the same for every kind (``MODEL_KIND`` in
+    ``config.h`` selects the model)."""
+    return C_SOURCES, HEADERS
 
 
 def _name(kind: str, pass_through: bool = False) -> str:
@@ -173,19 +177,14 @@ def config_header(kind: str, res: dict, guid: str, pass_through: bool = False) -
     """Text of ``config.h`` for one FMU: its kind, GUID and start values
     (and ``PASS_THROUGH`` for the pass-through variant)."""
     name = _name(kind, pass_through)
-    if kind == "signal":
-        return "\n".join([f"/* {name}: written by fonbw.fmu.native (fonbw {fonbw.__version__}) */",
-                          "#ifndef FONBW_CONFIG_H", "#define FONBW_CONFIG_H",
-                          f'#define INSTANTIATION_TOKEN "{guid}"', f"#define DEFAULT_DT {_c(res['dt'])}",
-                          "#endif"]) + "\n"
-    cfg = {"plant": _plant_config, "pid": _pid_config}.get(kind, _model_config)(res)
+    cfg = {"plant": _plant_config, "pid": _pid_config, "signal": _signal_config}.get(kind, _model_config)(res)
     lines = [f"/* {name}: written by fonbw.fmu.native (fonbw {fonbw.__version__}) */",
              "#ifndef FONBW_CONFIG_H", "#define FONBW_CONFIG_H",
              f"#define MODEL_KIND {KIND_CODES[kind]}", f'#define INSTANTIATION_TOKEN "{guid}"']
     if pass_through:
         lines.append("#define PASS_THROUGH 1")
     lines += [f"#define {k} {v}" for k, v in cfg.items()]
-    if kind in ("plant", "pid"):  # unused FONBW names, so that one source serves all kinds
+    if kind in ("plant", "pid", "signal"):  # unused FONBW names, so that one source serves all kinds
         lines += ["#define NKU 1"]
     lines.append("#endif")
     return "\n".join(lines) + "\n"

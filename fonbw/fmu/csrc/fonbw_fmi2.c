@@ -62,7 +62,7 @@ fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2String token, 
 void fmi2FreeInstance(fmi2Component comp) {
     Instance *c = (Instance *)comp;
     if (!c) return;
-    inst_free_model(c);
+    inst_release(c);
     free(c->name);
     free(c);
 }
@@ -84,6 +84,7 @@ fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean tolDefined, fmi2R
 
 fmi2Status fmi2EnterInitializationMode(fmi2Component comp) {
     BEGIN("fmi2EnterInitializationMode", ST_INSTANTIATED)
+    if (inst_enter_init(c) != 0) { c->phase = ST_ERROR; return fmi2Error; }
     c->phase = ST_INIT;
     return fmi2OK;
 }
@@ -116,7 +117,7 @@ fmi2Status fmi2Terminate(fmi2Component comp) {
 
 fmi2Status fmi2Reset(fmi2Component comp) {
     BEGIN("fmi2Reset", ANY)
-    inst_free_model(c);
+    inst_release(c);
     inst_set_defaults(c);
     c->time = 0.0;
     c->phase = ST_INSTANTIATED;
@@ -204,8 +205,10 @@ fmi2Status fmi2GetString(fmi2Component comp, const fmi2ValueReference vr[], size
     size_t k;
     int count, *slot;
     const char **names;
+    char **text;
     BEGIN("fmi2GetString", ANY & ~ST_ERROR)
     for (k = 0; k < n; k++) {
+        if (vr[k] < NVR && (text = inst_text(c, (int)vr[k]))) { v[k] = *text ? *text : ""; continue; }
         if (vr[k] >= NVR || !(names = inst_string_names(c, (int)vr[k], &count, &slot)))
             return bad_vr(c, "fmi2GetString", vr[k]);
         v[k] = names[*slot];
@@ -217,8 +220,20 @@ fmi2Status fmi2SetString(fmi2Component comp, const fmi2ValueReference vr[], size
     size_t k;
     int e, count, *slot;
     const char **names;
+    char **text, *dup;
     BEGIN("fmi2SetString", ST_INSTANTIATED | ST_INIT | ST_STEP)
     for (k = 0; k < n; k++) {
+        if (vr[k] < NVR && (text = inst_text(c, (int)vr[k]))) {
+            if (may_set(c, "fmi2SetString", vr[k]) != fmi2OK) return fmi2Error;
+            if (!(dup = malloc(strlen(v[k] ? v[k] : "") + 1))) {
+                fonbw_log(c, fmi2Error, "logStatusError", "out of memory");
+                return fmi2Error;
+            }
+            strcpy(dup, v[k] ? v[k] : "");
+            free(*text);
+            *text = dup;
+            continue;
+        }
         if (vr[k] >= NVR || !(names = inst_string_names(c, (int)vr[k], &count, &slot)))
             return bad_vr(c, "fmi2SetString", vr[k]);
         if (may_set(c, "fmi2SetString", vr[k]) != fmi2OK) return fmi2Error;

@@ -10,6 +10,8 @@
  *   MODEL_KIND 2  FonbwCompensatorNative  y_ref [um] -> u [V], status
  *   MODEL_KIND 3  FonbwLinearPlantNative  input -> output (state space)
  *   MODEL_KIND 4  FonbwPIDNative          r, y [um], u_ff [V] -> u [V]
+ *   MODEL_KIND 5  FonbwSignalNative       (no input) -> y, a table of samples
+ *                                          from the text file named by `file`
  * With PASS_THROUGH defined, the FMU keeps the variables, parameters and
  * checks of its kind but its step is output = first input (a baseline that
  * shows what a master spends around the model). */
@@ -26,6 +28,9 @@
 #define KIND_COMP 2
 #define KIND_PLANT 3
 #define KIND_PID 4
+#define KIND_SIGNAL 5
+/* the kinds built on a FONBW model (its parameters, start and memory) */
+#define HAS_FONBW (MODEL_KIND == KIND_HYST || MODEL_KIND == KIND_COMP)
 #ifndef PASS_THROUGH
 #define PASS_THROUGH 0
 #endif
@@ -36,7 +41,7 @@ enum { VR_IN = 0, VR_OUT = 1, VR_KH = 2, VR_RHO = 3, VR_SIGMA = 4, VR_N = 5, VR_
        VR_KI = 14, VR_KD = 15, VR_TF = 16, VR_TT = 17, VR_KU = 20,
        VR_K = 40, VR_M = 41, VR_L = 42, VR_STATUS = 43, VR_REST_LO = 44,
        VR_REST_HI = 45, VR_REST_T = 46, VR_MEMORY = 50, VR_INTEGRATOR = 51,
-       VR_ANTI_WINDUP = 52, NVR = 53 };
+       VR_ANTI_WINDUP = 52, VR_FILE = 60, NVR = 61 };
 
 typedef enum { ST_INSTANTIATED = 1, ST_INIT = 2, ST_STEP = 4, ST_TERMINATED = 8, ST_ERROR = 16 } Phase;
 #define ANY (ST_INSTANTIATED | ST_INIT | ST_STEP | ST_TERMINATED | ST_ERROR)
@@ -60,6 +65,10 @@ typedef struct {
     Plant plant;
     Pid pid;
     int bad_before;         /* compensator: in a saturation episode */
+    char *file;             /* signal: the String parameter file (NULL: empty) */
+    char *loaded_from;      /* signal: the file the table was read from (NULL: none) */
+    double *table;          /* signal: the samples */
+    size_t n_table, k_table; /* signal: samples; internal steps done */
 } Instance;
 
 /* a log line through the host's logger (fmi2OK lines only with debug logging on) */
@@ -70,17 +79,28 @@ int inst_is_input(int vr);
 int inst_is_param(int vr);
 int inst_is_real(int vr);
 int inst_is_int(int vr);
-/* the names a String parameter takes (NULL: not a String variable), and where its index is kept */
+/* the names a String parameter takes (NULL: not an enumerated String), and where its index is kept */
 const char **inst_string_names(Instance *c, int vr, int *count, int **slot);
+/* where a free-text String parameter is kept (NULL: not one) */
+char **inst_text(Instance *c, int vr);
 
 void inst_set_defaults(Instance *c);
 void inst_free_model(Instance *c);
+/* what the instance holds apart from the model (strings, tables), at fmi2Reset and fmi2FreeInstance */
+void inst_release(Instance *c);
+/* when initialization starts: 0, or -1 with an fmi2Error log line */
+int inst_enter_init(Instance *c);
 /* build the model from the parameters: 0, or -1 with an fmi2Error log line */
 int inst_build_model(Instance *c);
 int inst_params_changed(const Instance *c);
 double inst_output(const Instance *c);
 /* one internal step of dt */
 void inst_one_step(Instance *c);
+
+/* signal (fonbw_table.c): read the table named by c->file (0, or -1 with an
+ * fmi2Error log line, no table kept), and let it go */
+int table_load(Instance *c);
+void table_drop(Instance *c);
 
 /* the model's own state as doubles: size, write, read (0, or -1 if it does not fit) */
 size_t inst_model_size(const Instance *c);

@@ -2,9 +2,11 @@
  * variables of each kind, its build-time start values, building the model
  * from the parameters at initialization (with the parameter checks), one
  * internal step, and the model's own part of the FMU state. Numerics in
- * fonbw_numerics.c, fonbw_compensator.c, fonbw_plant.c, fonbw_pid.c. */
+ * fonbw_numerics.c, fonbw_compensator.c, fonbw_plant.c, fonbw_pid.c; the
+ * signal's table in fonbw_table.c. */
 #include <math.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "fonbw_instance.h"
@@ -14,6 +16,7 @@ static const char *INTEGRATOR_NAMES[] = {"forward", "backward", "tustin"};
 static const char *ANTI_WINDUP_NAMES[] = {"back-calculation", "clamping", "none"};
 
 int inst_is_input(int vr) {
+    if (MODEL_KIND == KIND_SIGNAL) return 0;
     return vr == VR_IN || (MODEL_KIND == KIND_PID && (vr == VR_Y || vr == VR_UFF));
 }
 
@@ -22,7 +25,9 @@ int inst_is_param(int vr) {
 #if MODEL_KIND == KIND_PID
     if (vr == VR_UMIN || vr == VR_UMAX || (vr >= VR_KP && vr <= VR_TT) || vr == VR_INTEGRATOR ||
         vr == VR_ANTI_WINDUP) return 1;
-#elif MODEL_KIND != KIND_PLANT
+#elif MODEL_KIND == KIND_SIGNAL
+    if (vr == VR_FILE) return 1;
+#elif HAS_FONBW
     if ((vr >= VR_KH && vr <= VR_LAM2) || (vr >= VR_KU && vr < VR_KU + NKU) ||
         vr == VR_K || vr == VR_M || vr == VR_L || vr == VR_MEMORY ||
         (vr >= VR_REST_LO && vr <= VR_REST_T)) return 1;
@@ -42,22 +47,26 @@ int inst_is_int(int vr) {
 #if MODEL_KIND == KIND_COMP
     if (vr == VR_STATUS) return 1;
 #endif
-    return MODEL_KIND != KIND_PLANT && MODEL_KIND != KIND_PID && (vr == VR_K || vr == VR_M || vr == VR_L);
+    return HAS_FONBW && (vr == VR_K || vr == VR_M || vr == VR_L);
 }
 
-/* the names a String parameter takes (NULL: not a String variable), and where its index is kept */
+/* the names a String parameter takes (NULL: not an enumerated String), and where its index is kept */
 const char **inst_string_names(Instance *c, int vr, int *count, int **slot) {
     if (MODEL_KIND == KIND_PID && (vr == VR_INTEGRATOR || vr == VR_ANTI_WINDUP)) {
         *count = 3;
         *slot = &c->i[vr];
         return vr == VR_INTEGRATOR ? INTEGRATOR_NAMES : ANTI_WINDUP_NAMES;
     }
-    if (MODEL_KIND != KIND_PLANT && MODEL_KIND != KIND_PID && vr == VR_MEMORY) {
+    if (HAS_FONBW && vr == VR_MEMORY) {
         *count = 3;
         *slot = &c->engine;
         return ENGINE_NAMES;
     }
     return NULL;
+}
+
+char **inst_text(Instance *c, int vr) {
+    return MODEL_KIND == KIND_SIGNAL && vr == VR_FILE ? &c->file : NULL;
 }
 
 void inst_set_defaults(Instance *c) {
@@ -69,7 +78,7 @@ void inst_set_defaults(Instance *c) {
     c->r[VR_TF] = DEFAULT_TF; c->r[VR_TT] = DEFAULT_TT;
     c->r[VR_UMIN] = DEFAULT_UMIN; c->r[VR_UMAX] = DEFAULT_UMAX;
     c->i[VR_INTEGRATOR] = DEFAULT_INTEGRATOR; c->i[VR_ANTI_WINDUP] = DEFAULT_ANTI_WINDUP;
-#elif MODEL_KIND != KIND_PLANT
+#elif HAS_FONBW
     {
         static const double ku[NKU] = DEFAULT_KU;
         int k;
@@ -90,6 +99,8 @@ void inst_set_defaults(Instance *c) {
 void inst_free_model(Instance *c) {
     if (!c->built) return;
 #if PASS_THROUGH
+#elif MODEL_KIND == KIND_SIGNAL
+    c->k_table = 0;  /* the table belongs to the file parameter, not to the built model */
 #elif MODEL_KIND == KIND_HYST
     fonbw_free(&c->hyst);
 #elif MODEL_KIND == KIND_COMP
@@ -98,7 +109,27 @@ void inst_free_model(Instance *c) {
     c->built = 0;
 }
 
-#if MODEL_KIND != KIND_PLANT && MODEL_KIND != KIND_PID
+void inst_release(Instance *c) {
+    inst_free_model(c);
+#if MODEL_KIND == KIND_SIGNAL
+    table_drop(c);
+#endif
+    free(c->file);
+    c->file = NULL;
+}
+
+int inst_enter_init(Instance *c) {
+#if MODEL_KIND == KIND_SIGNAL && !PASS_THROUGH
+    /* read now so that the initial output is known during initialization */
+    c->k_table = 0;
+    if (c->file && *c->file && table_load(c) != 0) return -1;
+#else
+    (void)c;
+#endif
+    return 0;
+}
+
+#if HAS_FONBW
 static FonbwParams params_of(const Instance *c) {
     FonbwParams p;
     int k;
@@ -134,6 +165,15 @@ int inst_build_model(Instance *c) {
         p->integrator = c->i[VR_INTEGRATOR]; p->anti_windup = c->i[VR_ANTI_WINDUP];
         bad = pid_check(p, msg, sizeof msg);
     }
+#elif MODEL_KIND == KIND_SIGNAL
+    if (!(isfinite(dt) && dt > 0.0)) {
+        snprintf(msg, sizeof msg, "dt = %.17g s must be a finite number > 0", dt);
+        bad = msg;
+    } else if (!c->loaded_from || strcmp(c->loaded_from, c->file ? c->file : "") != 0) {
+        /* the file changed since initialization started: read it again */
+        if (table_load(c) != 0) return -1;
+    }
+    c->k_table = 0;
 #elif MODEL_KIND == KIND_PLANT
     {
         static const double A[] = PLANT_A, B[] = PLANT_B, C[] = PLANT_C;
@@ -202,6 +242,8 @@ int inst_build_model(Instance *c) {
 
 int inst_params_changed(const Instance *c) {
     int vr;
+    if (MODEL_KIND == KIND_SIGNAL && (!c->loaded_from || strcmp(c->loaded_from, c->file ? c->file : "") != 0))
+        return 1;
     for (vr = 0; vr < NVR; vr++) {
         if (!inst_is_param(vr)) continue;
         if (inst_is_real(vr) ? memcmp(&c->r[vr], &c->built_from[vr], sizeof(double)) != 0
@@ -213,13 +255,19 @@ int inst_params_changed(const Instance *c) {
 double inst_output(const Instance *c) {
 #if MODEL_KIND == KIND_PLANT && !PASS_THROUGH
     return c->built ? plant_output(&c->plant, c->r[VR_IN]) : 0.0;
+#elif MODEL_KIND == KIND_SIGNAL
+    /* sample k after k internal steps, the last one held past the end */
+    if (!c->n_table) return 0.0;
+    return c->table[c->k_table < c->n_table ? c->k_table : c->n_table - 1];
 #else
     return c->r[VR_OUT];
 #endif
 }
 
 void inst_one_step(Instance *c) {
-#if PASS_THROUGH
+#if MODEL_KIND == KIND_SIGNAL
+    c->k_table++;
+#elif PASS_THROUGH
     c->r[VR_OUT] = c->r[VR_IN];
 #elif MODEL_KIND == KIND_PID
     c->r[VR_OUT] = pid_step(&c->pid, c->r[VR_IN], c->r[VR_Y], c->r[VR_UFF]);
@@ -237,6 +285,8 @@ size_t inst_model_size(const Instance *c) {
     if (!c->built) return 0;
 #if PASS_THROUGH
     return 0;
+#elif MODEL_KIND == KIND_SIGNAL
+    return 1;
 #elif MODEL_KIND == KIND_PID
     return 3;
 #elif MODEL_KIND == KIND_HYST
@@ -251,6 +301,8 @@ size_t inst_model_size(const Instance *c) {
 void inst_model_write(const Instance *c, double *d) {
 #if PASS_THROUGH
     (void)c; (void)d;
+#elif MODEL_KIND == KIND_SIGNAL
+    d[0] = (double)c->k_table;
 #elif MODEL_KIND == KIND_PID
     d[0] = c->pid.i; d[1] = c->pid.e1; d[2] = c->pid.d1;
 #elif MODEL_KIND == KIND_HYST
@@ -267,6 +319,10 @@ int inst_model_read(Instance *c, const double *d, size_t nm) {
 #if PASS_THROUGH
     (void)c; (void)d;
     return nm != 0 ? -1 : 0;
+#elif MODEL_KIND == KIND_SIGNAL
+    if (nm != 1 || !(d[0] >= 0.0 && d[0] < 1e18)) return -1;
+    c->k_table = (size_t)d[0];
+    return 0;
 #elif MODEL_KIND == KIND_PID
     if (nm != 3) return -1;
     c->pid.i = d[0]; c->pid.e1 = d[1]; c->pid.d1 = d[2];
