@@ -355,5 +355,9 @@ def test_linear_gain_runs_the_model_start_over_its_range():
     k = loop.linear_gain(m, DT)
     assert k == pytest.approx((y[-1] - y[0]) / 90.0, rel=1e-12)
     assert abs(k - m.simulate(u, DT)[-1] / 90.0) > 1e-3 * abs(k)
-    with pytest.raises(ValueError, match="no rise"):
-        loop.linear_gain(m, DT, u_range=(-90.0, 0.0))
+    # a range below 0 V: the ramp runs down from rest
+    u = np.linspace(0.0, -90.0, int(round(1.0 / DT)))
+    y = m.simulate(np.concatenate([pre, u]), DT)[pre.size:]
+    assert loop.linear_gain(m, DT, u_range=(-90.0, 0.0)) == pytest.approx((y[-1] - y[0]) / -90.0, rel=1e-12)
+    with pytest.raises(ValueError, match="low < high"):
+        loop.linear_gain(m, DT, u_range=(1.0, 1.0))

@@ -247,6 +247,22 @@ def test_signal_fmu_plays_its_table(tmp_path):
     assert np.array_equal(np.array(got), want)
     with pytest.raises(Exception):
         start(tmp_path / "missing.txt")
+    # CRLF, blank and whitespace-only lines are skipped, not read as 0
+    crlf = tmp_path / "crlf.txt"
+    crlf.write_bytes(b"1.5\r\n\r\n  \t\r\n-2.25  \r\n   \n")
+    s = start(crlf)
+    got = [s.getReal([vr["y"]])[0]]
+    s.doStep(0.0, DT)
+    got.append(s.getReal([vr["y"]])[0])
+    with pytest.raises(Exception):  # the model description offers no FMU state
+        s.getFMUstate()
+    s.terminate()
+    s.freeInstance()
+    assert got == [1.5, -2.25]
+    bad = tmp_path / "bad.txt"
+    bad.write_text("1\n2 3\n")
+    with pytest.raises(Exception):
+        start(bad)
 
 
 def test_step_not_multiple_discards(fmus):

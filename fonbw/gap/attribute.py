@@ -31,10 +31,11 @@ split into training and validation sets:
    Dirichlet weights, because the evidence of a lag sits in the two or three
    segments with step edges, see :func:`fonbw.gap.checks.bootstrap`), and its parameters
    agree across training records: with the linear parameters fitted on all
-   but one record (on the reference hysteresis only the effect's own gains,
-   its weights kept from the fit on every record), the effect still lowers
-   the error on the held-out records over the time and the displacements
-   the other records span (leave one record out, pooled). Greedy, at
+   but one record (on the reference hysteresis its output from the fit on
+   every record under one free gain, beside the effect's own gains), the
+   effect still lowers the error on the held-out records over the time and
+   the displacements the other records span (leave one record out, pooled).
+   Greedy, at
    most ``max_effects`` effects, strongest first; among passing effects that
    close nearly as much (``tie_margin``) the one with the lowest BIC wins
    (lags of a delay, an amplifier and a resonance look alike on the

@@ -133,6 +133,8 @@ def loro(fitter, fit_base, fit_eff, eff_base, eff_new, yrefs):
     nb = fitter.core.n_base if getattr(fitter.core, "name", "") == "reference" else 0
     full = ([fitter.fit_linear(A[keep], y[keep], o)[0] for A, o in ((A0, o0), (A1, o1))] if nb
             else [None, None])
+    if any(b is None for b in full):
+        nb = 0  # non-finite columns: both models refit in full, alike
     ratios, tot = [], [0.0, 0.0]
     for i in range(len(recs)):
         m = keep.copy()
@@ -151,7 +153,7 @@ def loro(fitter, fit_base, fit_eff, eff_base, eff_new, yrefs):
             continue
         out = []
         for A, o, bf in ((A0, o0, full[0]), (A1, o1, full[1])):
-            if nb and bf is not None:
+            if nb:
                 A = np.column_stack([A[:, :nb] @ bf[:nb], A[:, nb:]])
             b, _ = fitter.fit_linear(A[m], y[m], o)
             r = y[held] - fitter.output(A[held], b, o)

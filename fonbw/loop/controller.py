@@ -53,8 +53,9 @@ def plant_system(kind="dynamics"):
 
 def linear_gain(model, dt=DT, u_range=None) -> float:
     """Mean slope of a hysteresis model [µm/V] (what an uncompensated open
-    loop uses): its rise over a 1 s ramp from rest (the point of `u_range`
-    nearest 0 V) to the top of `u_range` [V], divided by the ramp's span.
+    loop uses): its change over a 1 s ramp from rest (the point of `u_range`
+    nearest 0 V) to the top of `u_range` [V] (to its bottom for a range
+    below 0 V), divided by the ramp's span.
 
     The ramp runs from the model's recorded start (its rest cycle, as
     ``validate`` and the loop's actuator run it); `u_range` defaults to the
@@ -68,11 +69,10 @@ def linear_gain(model, dt=DT, u_range=None) -> float:
     if not hi > lo:
         raise ValueError(f"linear_gain: u_range must be (low, high) with low < high [V], got {(lo, hi)}")
     rest = min(max(0.0, lo), hi)
-    if not hi > rest:
-        raise ValueError(f"linear_gain: the range {(lo, hi)} V has no rise above its rest voltage {rest} V")
-    u = np.linspace(rest, hi, max(int(round(1.0 / dt)), 2))
+    end = hi if hi > rest else lo
+    u = np.linspace(rest, end, max(int(round(1.0 / dt)), 2))
     y = simulate_record(model, u, dt)
-    return float((y[-1] - y[0]) / (hi - rest))
+    return float((y[-1] - y[0]) / (end - rest))
 
 
 def controller_spec(kp, ki=0.0, kd=0.0, dt=DT, u_min=U_LIMITS[0], u_max=U_LIMITS[1], Tf=None,

@@ -242,8 +242,6 @@ int inst_build_model(Instance *c) {
 
 int inst_params_changed(const Instance *c) {
     int vr;
-    if (MODEL_KIND == KIND_SIGNAL && (!c->loaded_from || strcmp(c->loaded_from, c->file ? c->file : "") != 0))
-        return 1;
     for (vr = 0; vr < NVR; vr++) {
         if (!inst_is_param(vr)) continue;
         if (inst_is_real(vr) ? memcmp(&c->r[vr], &c->built_from[vr], sizeof(double)) != 0
@@ -283,10 +281,8 @@ void inst_one_step(Instance *c) {
 
 size_t inst_model_size(const Instance *c) {
     if (!c->built) return 0;
-#if PASS_THROUGH
+#if PASS_THROUGH || MODEL_KIND == KIND_SIGNAL
     return 0;
-#elif MODEL_KIND == KIND_SIGNAL
-    return 1;
 #elif MODEL_KIND == KIND_PID
     return 3;
 #elif MODEL_KIND == KIND_HYST
@@ -299,10 +295,8 @@ size_t inst_model_size(const Instance *c) {
 }
 
 void inst_model_write(const Instance *c, double *d) {
-#if PASS_THROUGH
+#if PASS_THROUGH || MODEL_KIND == KIND_SIGNAL
     (void)c; (void)d;
-#elif MODEL_KIND == KIND_SIGNAL
-    d[0] = (double)c->k_table;
 #elif MODEL_KIND == KIND_PID
     d[0] = c->pid.i; d[1] = c->pid.e1; d[2] = c->pid.d1;
 #elif MODEL_KIND == KIND_HYST
@@ -316,13 +310,9 @@ void inst_model_write(const Instance *c, double *d) {
 }
 
 int inst_model_read(Instance *c, const double *d, size_t nm) {
-#if PASS_THROUGH
+#if PASS_THROUGH || MODEL_KIND == KIND_SIGNAL
     (void)c; (void)d;
     return nm != 0 ? -1 : 0;
-#elif MODEL_KIND == KIND_SIGNAL
-    if (nm != 1 || !(d[0] >= 0.0 && d[0] < 1e18)) return -1;
-    c->k_table = (size_t)d[0];
-    return 0;
 #elif MODEL_KIND == KIND_PID
     if (nm != 3) return -1;
     c->pid.i = d[0]; c->pid.e1 = d[1]; c->pid.d1 = d[2];

@@ -3,7 +3,6 @@
  * significant digits so that a correctly rounding strtod (glibc, macOS, the
  * UCRT) reads every sample back bit for bit. Read when initialization starts
  * and again when it ends if `file` changed in between (fonbw_model.c). */
-#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -18,7 +17,7 @@ void table_drop(Instance *c) {
 
 int table_load(Instance *c) {
     FILE *f;
-    char line[128], *end;
+    char line[256], *end;
     size_t cap = 0, row = 0;
     table_drop(c);
     if (!c->file || !*c->file) {
@@ -31,11 +30,19 @@ int table_load(Instance *c) {
     }
     while (fgets(line, sizeof line, f)) {
         double v;
+        const char *p = line;
         row++;
-        if (line[0] == '\n' || line[0] == '\0') continue;
-        errno = 0;
-        v = strtod(line, &end);
-        while (*end == ' ' || *end == '\t' || *end == '\r' || *end == '\n') end++;
+        if (!strchr(line, '\n') && !feof(f)) {
+            fonbw_log(c, fmi2Error, "logStatusError", "invalid parameters: line %lu of '%s' is longer than "
+                      "%d characters", (unsigned long)row, c->file, (int)sizeof line - 2);
+            fclose(f); table_drop(c);
+            return -1;
+        }
+        while (*p == ' ' || *p == '\t' || *p == '\r' || *p == '\n') p++;
+        if (!*p) continue;  /* a blank line, LF or CRLF, with or without spaces */
+        v = strtod(p, &end);
+        if (end == p) end = line;  /* nothing converted: not a number */
+        else while (*end == ' ' || *end == '\t' || *end == '\r' || *end == '\n') end++;
         if (end == line || *end || !isfinite(v)) {
             fonbw_log(c, fmi2Error, "logStatusError", "invalid parameters: line %lu of '%s' is not a "
                       "finite number", (unsigned long)row, c->file);
