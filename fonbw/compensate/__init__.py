@@ -81,7 +81,9 @@ Start
     From its virgin state instead, an identified FONBW's descending branch
     stays above that zero at the lowest voltage, and the bottom of a
     trajectory that returns to 0 µm is out of reach (``history=()`` runs
-    from the virgin state). The same start is run wherever the model runs
+    from the virgin state). The Zhu model's eq.-22 form is the exception: its
+    force balance is written on H_d's derivatives from rest, so it warns and
+    runs from rest. The same start is run wherever the model runs
     sample by sample or against a record: the hysteresis and compensator FMUs
     (pythonfmu and native), the closed loop's actuator
     (:func:`fonbw.compensate.rest.started_stepper`) and
