@@ -253,7 +253,7 @@ fmi2Status fmi2SetString(fmi2Component comp, const fmi2ValueReference vr[], size
 
 fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real h, fmi2Boolean noSetPrior) {
     double m;
-    long k, j;
+    long k;
     BEGIN("fmi2DoStep", ST_STEP)
     (void)noSetPrior;
     m = h / c->r[VR_DT];
@@ -271,7 +271,7 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real h, fmi2Boolean no
 #if MODEL_KIND == KIND_COMP && !PASS_THROUGH
     {
         double bad0 = c->comp.n_sat + c->comp.n_fail;
-        for (j = 0; j < k; j++) inst_one_step(c);
+        inst_steps(c, k);
         if (c->comp.n_sat + c->comp.n_fail > bad0) {
             if (!c->bad_before)
                 fonbw_log(c, fmi2Warning, "logStatusWarning", "at t=%.17g y_ref=%.17g um: %s (u = %.17g V); "
@@ -282,11 +282,8 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real h, fmi2Boolean no
             c->bad_before = 1;
         } else c->bad_before = 0;
     }
-#elif MODEL_KIND == KIND_SIGNAL
-    (void)j;
-    c->k_table += (size_t)k;  /* a long communication step costs nothing */
 #else
-    for (j = 0; j < k; j++) inst_one_step(c);
+    inst_steps(c, k);
 #endif
     c->time = t + h;
     return fmi2OK;

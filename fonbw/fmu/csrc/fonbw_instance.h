@@ -1,7 +1,7 @@
 /* One instance of a fonbw native FMU, shared by the FMI 2.0 interface
  * (fonbw_fmi2.c: life cycle, variable access, stepping, FMU state) and the
  * per-model parts (fonbw_model.c: which variables a kind has, its start
- * values, building the model from the parameters, one internal step, the
+ * values, building the model from the parameters, the internal steps, the
  * model's own state).
  *
  * config.h (written by the builder into each FMU's sources/) selects the
@@ -94,8 +94,8 @@ int inst_enter_init(Instance *c);
 int inst_build_model(Instance *c);
 int inst_params_changed(const Instance *c);
 double inst_output(const Instance *c);
-/* one internal step of dt */
-void inst_one_step(Instance *c);
+/* k internal steps of dt */
+void inst_steps(Instance *c, long k);
 
 /* signal (fonbw_table.c): read the table named by c->file (0, or -1 with an
  * fmi2Error log line, no table kept), and let it go */
