@@ -13,7 +13,7 @@ import gap_truth as tr
 from fonbw import plant
 from fonbw.gap import diagnose
 from fonbw.gap import effects as fx
-from fonbw.gap.checks import coverage
+from fonbw.gap.checks import coverage, remaining
 from fonbw.gap.fitter import Fitter, decimate
 from fonbw.gap.localize import branch, localize, noise_floor, reversal_age
 from fonbw.io import Record, write_csv
@@ -223,6 +223,52 @@ def test_coverage_flags_faster_validation():
     assert coverage([fast], [slow], DT) == []
 
 
+def test_remaining_shares_are_each_records_excess_over_the_floor():
+    # residuals of known power: 0.3 µm and 0.1 µm square waves on 4000 and 2000 samples, σ² = 0.01
+    a = Record.from_arrays(u=np.zeros(4000), y=0.3 * np.where(np.arange(4000) % 2, 1, -1), dt=DT, path="a")
+    b = Record.from_arrays(u=np.zeros(2000), y=0.1 * np.where(np.arange(2000) % 2, 1, -1), dt=DT, path="b")
+    flag = {"condition": "rate_p99", "train": 10.0, "validate": 30.0, "record": "a"}
+    left = remaining([b, a], [np.zeros(2000), np.zeros(4000)], 0.01, [flag])
+    ea, eb = 4000 * (0.09 - 0.01), 2000 * 0.0   # b sits at the floor
+    assert [r["record"] for r in left] == ["a", "b"]
+    assert left[0]["share"] == pytest.approx(ea / (ea + eb)) and left[1]["share"] == pytest.approx(0.0, abs=1e-12)
+    assert left[0]["rms"] == pytest.approx(0.3) and left[0]["outside"] == [flag] and left[1]["outside"] == []
+    assert all(r["share"] == 0.0 for r in remaining([b], [np.zeros(2000)], 0.02))
+
+
+def test_unexplained_verdict_says_where_the_gap_lies_and_which_bounds_bind():
+    from fonbw.gap.selection import verdict
+
+    flag = {"condition": "rate_p99", "train": 2190.0, "validate": 7537.0, "record": "sine20"}
+    left = [{"record": "sine20", "share": 0.95, "rms": 2.75, "outside": [flag]},
+            {"record": "steps", "share": 0.05, "rms": 0.31, "outside": []}]
+    kw = dict(candidates=[], mse0=0.58, excess0=0.58, at_floor=False, steps=[], coverage=[flag], params={})
+    v = verdict([], mse=0.58, remaining=left, at_bounds=["n", "lam2"], **kw)
+    assert v["unexplained"] and v["remaining"] == left
+    assert "95 % of the gap left lies on sine20" in v["message"]
+    assert "7537 against 2190 V/s" in v["message"] and "n, lam2" in v["message"]
+    # a covered record is named without the extrapolation advice; a spread-out
+    # remainder names no record; an explained gap adds nothing
+    inside = verdict([], mse=0.58, remaining=[{**left[1], "share": 0.6}, {**left[0], "share": 0.4}], **kw)
+    assert "60 % of the gap left lies on steps" in inside["message"] and "extrapolate" not in inside["message"]
+    assert "lies on" not in verdict([], mse=0.58, remaining=[{**r, "share": 0.4} for r in left], **kw)["message"]
+    done = verdict([], mse=0.01, remaining=left, at_bounds=["n"], **kw)
+    assert not done["unexplained"] and "lies on" not in done["message"] and "bounds" not in done["message"]
+
+
+def test_nominal_at_bounds_reads_linear_and_log_ranges():
+    from types import SimpleNamespace
+
+    from fonbw.gap.attribute import Diagnosis
+
+    space = SimpleNamespace(names=["rho", "n", "lam2", "fixed"], bounds=[(1e-4, 1.0), (1.0, 4.0), (0.05, 1.0), (2.0, 2.0)],
+                            log_scale=[True, False, False, False])
+    d = SimpleNamespace(space=space, base={"x": np.array([1.0005e-4, 3.99, 0.05, 2.0])})
+    # 1.0005e-4 is 5e-5 of the log range above its bound; 3.99 is 3e-3 of its range below 4
+    assert Diagnosis.nominal_at_bounds(d) == ["rho", "lam2"]
+    assert Diagnosis.nominal_at_bounds(d, tol=5e-3) == ["rho", "n", "lam2"]
+
+
 def test_truth_amplifier_is_the_exact_two_pole_response_under_zoh():
     # no slew limit: the sub-stepped ODE is the linear 1/((s/(8π f_c) + 1)(s/(2π f_c) + 1))
     # under a zero-order hold, read at the end of each interval (u_k included)
@@ -352,13 +398,19 @@ def test_json_contract_and_gap_closed_definition(dynamics_case):
         if c["gap_closed"] is not None:
             assert c["gap_closed"] == pytest.approx((m0 - c["rms_validate"] ** 2) / (m0 - s2), rel=1e-9)
     assert {c["effect"] for c in res["candidates"]} == set(fx.EFFECTS)
+    # where the gap left lies: shares of the final model's excess, one per validation record
+    left = res["verdict"]["remaining"]
+    assert len(left) == len(res["records"]["validate"])
+    assert sum(r["share"] for r in left) == pytest.approx(1.0) or all(r["share"] == 0 for r in left)
+    assert [r["share"] for r in left] == sorted((r["share"] for r in left), reverse=True)
+    assert isinstance(res["nominal"]["at_bounds"], list)
 
 
 def test_html_report_is_self_contained(dynamics_case):
     _, page, _ = dynamics_case
     # localization (2), waterfall, and the loop-shape residual of FONBW and the reference
     assert page.count("data:image/png;base64,") == 4
-    assert "Hysteresis form" in page
+    assert "Hysteresis form" in page and "Where the gap left lies" in page
     assert "src=\"http" not in page and "<script" not in page
 
 

@@ -477,7 +477,9 @@ class Diagnosis:
             self.accepted, self.candidates, mse0=self.mse0, mse=self.current["mse"], excess0=self.excess0,
             at_floor=self.at_floor, steps=self.steps, coverage=self.coverage,
             params=self.att["fitter"].effect_params(self.current["fit"], self.current["eff"]),
-            form=self.form, start=self.start_report())
+            form=self.form, start=self.start_report(),
+            remaining=checks.remaining(self.val_s, self.current["pred"], self.sigma2, self.coverage),
+            at_bounds=self.nominal_at_bounds())
         self.timing["total_s"] = time.perf_counter() - self.t_start
         given = self.model_given
         nominal = {
@@ -489,6 +491,7 @@ class Diagnosis:
                 [given.simulate(r.u, self.dt) for r in self.val]))) if given is not None else None),
             "reference": self.ref_info,
             "attributed_on": self.att["core"],
+            "at_bounds": self.nominal_at_bounds(),
         }
         records = {"train": [str(r.path) for r in self.train], "validate": [str(r.path) for r in self.val],
                    "start": {k: [s.to_dict() for s in v] for k, v in self.starts.items()}}
@@ -496,6 +499,20 @@ class Diagnosis:
         out = DiagnosisResult(nominal, self.loc, self.candidates, verdict, self.timing, records,
                               model=self.nominal)
         out.loops = self.loops()
+        return out
+
+    def nominal_at_bounds(self, tol=1e-3):
+        """Search variables of the nominal FONBW within `tol` of a bound (as a
+        share of the range, of its logarithm for log-scaled ones)."""
+        out = []
+        for name, x, (lo, hi), lg in zip(self.space.names, self.base["x"], self.space.bounds,
+                                         self.space.log_scale):
+            if hi <= lo:
+                continue
+            if lg:
+                x, lo, hi = math.log(max(x, 1e-300)), math.log(lo), math.log(hi)
+            if min(x - lo, hi - x) <= tol * (hi - lo):
+                out.append(name)
         return out
 
     def start_report(self):

@@ -5,13 +5,22 @@ holds up: :func:`bootstrap` (a Bayesian block bootstrap over validation
 segments), :func:`loro` (agreement of its parameters across training
 records, leave one record out) and, in :class:`fonbw.gap.attribute.Diagnosis`,
 the information criterion. :func:`coverage` flags validation conditions the
-training records never reached; :func:`mse` is the pooled error they all use.
+training records never reached, :func:`remaining` says on which validation
+records the gap left after the diagnosis lies (and whether they are covered);
+:func:`mse` is the pooled error they all use.
 """
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["coverage", "mse", "bootstrap", "loro"]
+__all__ = ["CONDITIONS", "coverage", "remaining", "mse", "bootstrap", "loro"]
+
+
+#: What each :func:`coverage` condition measures, and its unit.
+CONDITIONS = {"u_max": ("highest input", "V"), "u_min": ("lowest input", "V"),
+              "rate_p99": ("input rate (99th percentile)", "V/s"),
+              "f95": ("input bandwidth (95 % of its power)", "Hz"), "hold_s": ("longest hold", "s"),
+              "duration_s": ("duration", "s")}
 
 
 def coverage(train, validate, dt):
@@ -53,6 +62,36 @@ def coverage(train, validate, dt):
         if s["u_min"] < umin - 0.1 * span:
             flags.append({"condition": "u_min", "train": umin, "validate": s["u_min"], "record": str(r.path)})
     return flags
+
+
+def remaining(records, preds, sigma2, flags=()):
+    """Where the gap left by a model lies: each validation record's share of it.
+
+    Parameters
+    ----------
+    records : list of Record
+        Validation records (scored part).
+    preds : list of ndarray
+        The model's predictions [µm] on them.
+    sigma2 : float
+        Noise floor σ² [µm²].
+    flags : list of dict
+        :func:`coverage` flags; those of a record are listed with it.
+
+    Returns
+    -------
+    list of dict
+        Per record, largest share first: ``record``, ``share`` (its part of
+        Σ n_i max(MSE_i − σ², 0), 0 when nothing is left), ``rms`` [µm] and
+        ``outside`` (its coverage flags: conditions beyond the training records).
+    """
+    excess = [len(r.y) * max(float(np.mean((r.y - p) ** 2)) - sigma2, 0.0) for r, p in zip(records, preds)]
+    total = sum(excess)
+    out = [{"record": str(r.path), "share": e / total if total > 0 else 0.0,
+            "rms": float(np.sqrt(np.mean((r.y - p) ** 2))),
+            "outside": [f for f in flags if f["record"] == str(r.path)]}
+           for r, p, e in zip(records, preds, excess)]
+    return sorted(out, key=lambda d: -d["share"])
 
 
 def mse(records, preds):

@@ -120,6 +120,11 @@ def _loop_figure(plt, loops):
     return _png(fig)
 
 
+def _outside(flags):
+    """The coverage conditions a validation record exceeds, as text ('no' for none)."""
+    return "; ".join(f"{f['condition']} {f['validate']:.4g} (training {f['train']:.4g})" for f in flags) or "no"
+
+
 def write_html(result, path):
     """Write a self-contained HTML report of a :func:`fonbw.gap.diagnose` result."""
     figs = _figures(result)
@@ -152,6 +157,9 @@ def write_html(result, path):
                  for w in v.get("waterfall", []))
     st = v.get("start") or {}
     loop_img = f'<img src="{figs["loops"]}" alt="loop-shape residual">' if "loops" in figs else ""
+    left = "".join(
+        f"<tr><td>{esc(r['record'])}</td><td>{100 * r['share']:.1f}</td><td>{r['rms']:.4g}</td>"
+        f"<td>{esc(_outside(r['outside']))}</td></tr>" for r in v.get("remaining", []))
     cov = "".join(f"<li>{esc(c['record'])}: {esc(c['condition'])} {c['validate']:.4g} (training up to {c['train']:.4g})</li>"
                   for c in v.get("coverage", [])) or "<li>none</li>"
     page = f"""<!DOCTYPE html>
@@ -175,6 +183,9 @@ noise floor σ = {nom['noise_floor']:.4g} µm.</p>
 <h2>Waterfall</h2><img src="{figs['waterfall']}" alt="waterfall">
 <table><tr><th>step</th><th>val. RMS [µm]</th><th>gap closed (cumulative)</th></tr>{wf}</table>
 <h2>Record starts</h2><p>{esc(st.get('message', ''))}</p>
+<h2>Where the gap left lies</h2>
+<table><tr><th>validation record</th><th>share of the gap left [%]</th><th>RMS [µm]</th>
+<th>beyond the training records</th></tr>{left}</table>
 <h2>Validation conditions not covered by training</h2><ul>{cov}</ul>
 </body></html>
 """

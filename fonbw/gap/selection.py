@@ -66,7 +66,7 @@ def retry_pool(pool, lib, chosen, candidates, accepted):
 
 
 def verdict(accepted, candidates, *, mse0, mse, excess0, at_floor, steps, coverage, params,
-            form=None, start=None):
+            form=None, start=None, remaining=None, at_bounds=None):
     """The verdict of a diagnosis.
 
     Parameters
@@ -88,13 +88,17 @@ def verdict(accepted, candidates, *, mse0, mse, excess0, at_floor, steps, covera
         The hysteresis-form finding (``material``, ``gap_closed``, ``where``, …).
     start : dict, optional
         How the records start (burn-ins).
+    remaining : list of dict, optional
+        Where the gap left by the final model lies (:func:`fonbw.gap.checks.remaining`).
+    at_bounds : list of str, optional
+        Search variables of the nominal FONBW at a bound of their range.
 
     Returns
     -------
     dict
         ``effects``, ``gap_closed`` (by form and effects together),
         ``unexplained``, ``at_noise_floor``, ``steps``, ``waterfall``,
-        ``form``, ``start``, ``coverage``, ``params``, ``message``.
+        ``form``, ``start``, ``coverage``, ``remaining``, ``params``, ``message``.
     """
     total = (mse0 - mse) / excess0 if excess0 > 0 and not at_floor else 0.0
     # strongest first: by what each accepted effect closes on its own
@@ -115,6 +119,7 @@ def verdict(accepted, candidates, *, mse0, mse, excess0, at_floor, steps, covera
         "form": form,
         "start": start,
         "coverage": coverage,
+        "remaining": list(remaining or []),
         "params": params,
     }
     named = (["the hysteresis form"] if form_named else []) + out["effects"]
@@ -126,6 +131,30 @@ def verdict(accepted, candidates, *, mse0, mse, excess0, at_floor, steps, covera
         out["message"] = f"partly explained by {', '.join(named)}; most of the gap is unexplained"
     else:
         out["message"] = f"explained by {', '.join(named)}"
+    if not at_floor and total < 0.9:
+        out["message"] += _left_text(out["remaining"], at_bounds, out["unexplained"])
     if start and start.get("mid_drive"):
         out["message"] += "; " + start["message"]
     return out
+
+
+def _left_text(remaining, at_bounds, unexplained):
+    """Where the unexplained part of a gap lies, for the verdict's message ('' if nowhere in particular)."""
+    from .checks import CONDITIONS
+
+    text = ""
+    top = remaining[0] if remaining else None
+    # one record carrying most of what is left is worth naming
+    if top is not None and top["share"] >= 0.5:
+        text += f"; {100 * top['share']:.0f} % of the gap left lies on {top['record']}"
+        if top["outside"]:
+            beyond = ", ".join(f"{CONDITIONS.get(f['condition'], (f['condition'], ''))[0]} "
+                               f"{f['validate']:.4g} against {f['train']:.4g} "
+                               f"{CONDITIONS.get(f['condition'], ('', ''))[1]}".rstrip()
+                               for f in top["outside"])
+            text += (f", beyond the training records ({beyond}): the models extrapolate there; "
+                     "a training record that covers it would tell")
+    if unexplained and at_bounds:
+        text += (f"; the nominal FONBW ends at the bounds of {', '.join(at_bounds)} "
+                 "(the best FONBW for these records may lie outside its search range)")
+    return text
