@@ -164,7 +164,8 @@ def _verdict(res):
             "at_floor": v.get("at_noise_floor"), "form": v.get("form"),
             "noise_floor": nom.get("noise_floor"), "rms0": nom.get("rms_validate"),
             "candidates": [{k: c.get(k) for k in ("effect", "gap_closed", "accepted", "checks")}
-                           for c in d.get("candidates", [])]}
+                           for c in d.get("candidates", [])],
+            "remaining": v.get("remaining"), "at_bounds": nom.get("at_bounds")}
 
 
 def run_scenario(seed, budget, options=None):

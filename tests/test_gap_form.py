@@ -73,6 +73,25 @@ def test_start_hold_half_way_up_is_mid_drive_and_drive_from_bottom_is_rest():
     assert s.at_rest and s.burn_in == 0
 
 
+def test_start_from_rest_with_a_dip_or_a_later_undershoot_is_at_rest():
+    # a 20-Hz sine from 0 V (no hold) on a 0..14 µm output
+    t = np.arange(2500) * 2e-4
+    u = 60.0 - 60.0 * np.cos(2 * np.pi * 20 * t)
+    y = 7.0 - 7.0 * np.cos(2 * np.pi * 20 * t)
+    # a wrong-way dip right after the start (non-minimum phase), 4.2 % of the range deep
+    dip = y - 0.8 * np.sin(np.pi * np.clip(t / 4e-3, 0, 1))
+    assert 0.04 < (dip[0] - dip.min()) / np.ptp(dip) < 0.045
+    assert start_state(_rec(u, dip)).at_rest
+    # later cycles undershoot the start by 20 % of the range: not a sign of a mid-drive start
+    under = y - 2.8 * np.clip((t - 0.1) / 0.1, 0, 1)
+    assert start_state(_rec(u, under)).at_rest
+    # an output that lags a drive already running (1.2 rad) starts 32 % of its range
+    # above the bottom it reaches during the input's first rise: mid-drive
+    late = 7.0 - 7.0 * np.cos(2 * np.pi * 20 * t - 1.2)
+    s = start_state(_rec(u, late))
+    assert not s.at_rest and s.burn_in > 0
+
+
 # ---------------------------------------------------------------------------
 # the reference as a nominal core of the joint refit
 
