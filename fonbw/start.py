@@ -48,9 +48,9 @@ class StartState:
         that value being the bottom of the record's input range (within
         ``REST_TOL``; a hold half-way up is a pause mid-drive); or when input
         and output both start at the bottom of their ranges (a drive that
-        leaves rest at once, e.g. a sine from 0 V): the output within
-        ``REST_TOL_Y`` of its bottom over the input's first rise, since a fast
-        drive can dip first or undershoot later).
+        leaves rest at once, e.g. a sine from 0 V), the output within
+        ``REST_TOL_Y`` of its bottom over the input's first rise to the middle
+        of its range (a fast drive can dip first or undershoot later).
     burn_in : int
         Number of leading samples to exclude (0 when at rest): until the input
         has come within ``EXTREME_TOL`` of both its record minimum and maximum,
@@ -98,10 +98,14 @@ def _held(x: np.ndarray, k: int, tol: float) -> bool:
     return bool(np.max(np.abs(w - np.median(w))) <= tol)
 
 
-def _first_rise(u: np.ndarray, tol: float) -> int:
-    """Samples until the input first turns down by more than `tol` (all if it never does)."""
-    down = np.flatnonzero(u < np.maximum.accumulate(u) - tol)
-    return int(down[0]) if down.size else len(u)
+def _first_rise(u: np.ndarray) -> int:
+    """Samples until the input first reaches the middle of its range.
+
+    Measured against the range, not the noise or the first turn: a record cut
+    just before an input minimum, or a noisy input, turns down within a
+    sample or two, and the output's bottom over those would be its start.
+    """
+    return int(np.argmax(u >= u.min() + 0.5 * float(np.ptp(u)))) + 1
 
 
 def _sweep_end(u: np.ndarray, tol: float) -> int:
@@ -144,7 +148,7 @@ def start_state(record, hold: int = HOLD_SAMPLES, max_share: float = MAX_BURN_IN
     # the output's bottom over the input's first rise, not over the record: a
     # fast or rate-dependent drive can take the output below its start later
     # on (undershoot at 20 Hz), which says nothing about how the record began
-    rise = _first_rise(u, tol_u)
+    rise = _first_rise(u)
     bottom_y = y[0] <= y[:rise].min() + REST_TOL_Y * max(float(np.ptp(y)), 1e-300) + tol_y
     if k >= hold and bottom_u and _held(u, k, tol_u) and _held(y, k, tol_y):
         return StartState(True, 0, f"input held at {u[0]:.4g} V for {k} samples and output still: at rest")

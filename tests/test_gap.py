@@ -224,16 +224,20 @@ def test_coverage_flags_faster_validation():
 
 
 def test_remaining_shares_are_each_records_excess_over_the_floor():
-    # residuals of known power: 0.3 µm and 0.1 µm square waves on 4000 and 2000 samples, σ² = 0.01
+    # residuals of known power: 0.3 µm and 0.1 µm square waves on 4000 and 2000 samples, σ² = 0.005
     a = Record.from_arrays(u=np.zeros(4000), y=0.3 * np.where(np.arange(4000) % 2, 1, -1), dt=DT, path="a")
     b = Record.from_arrays(u=np.zeros(2000), y=0.1 * np.where(np.arange(2000) % 2, 1, -1), dt=DT, path="b")
-    flag = {"condition": "rate_p99", "train": 10.0, "validate": 30.0, "record": "a"}
-    left = remaining([b, a], [np.zeros(2000), np.zeros(4000)], 0.01, [flag])
-    ea, eb = 4000 * (0.09 - 0.01), 2000 * 0.0   # b sits at the floor
+    flag = {"condition": "rate_p99", "train": 10.0, "validate": 30.0, "record": "a", "index": 1}
+    left = remaining([b, a], [np.zeros(2000), np.zeros(4000)], 0.005, [flag])
+    ea, eb = 4000 * (0.09 - 0.005), 2000 * (0.01 - 0.005)    # weighted by length: 0.971, 0.029
     assert [r["record"] for r in left] == ["a", "b"]
-    assert left[0]["share"] == pytest.approx(ea / (ea + eb)) and left[1]["share"] == pytest.approx(0.0, abs=1e-12)
+    assert left[0]["share"] == pytest.approx(ea / (ea + eb)) and left[1]["share"] == pytest.approx(eb / (ea + eb))
     assert left[0]["rms"] == pytest.approx(0.3) and left[0]["outside"] == [flag] and left[1]["outside"] == []
     assert all(r["share"] == 0.0 for r in remaining([b], [np.zeros(2000)], 0.02))
+    # two records of one name: the flag goes to the one at its position
+    c = Record.from_arrays(u=np.zeros(2000), y=b.y, dt=DT, path="a")
+    left = remaining([c, a], [np.zeros(2000), np.zeros(4000)], 0.005, [flag])
+    assert [len(r["outside"]) for r in left] == [1, 0] and left[0]["rms"] == pytest.approx(0.3)
 
 
 def test_unexplained_verdict_says_where_the_gap_lies_and_which_bounds_bind():

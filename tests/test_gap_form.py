@@ -90,6 +90,16 @@ def test_start_from_rest_with_a_dip_or_a_later_undershoot_is_at_rest():
     late = 7.0 - 7.0 * np.cos(2 * np.pi * 20 * t - 1.2)
     s = start_state(_rec(u, late))
     assert not s.at_rest and s.burn_in > 0
+    # the same with a noisy input (σ = 0.05 V), and cut just before the input's minimum
+    rng = np.random.default_rng(5)
+    for f in (1.0, 20.0):
+        v = 60.0 - 60.0 * np.cos(2 * np.pi * f * t)
+        lag = 7.0 - 7.0 * np.cos(2 * np.pi * f * t - 1.2)
+        for k in range(5):
+            assert not start_state(_rec(v + 0.05 * rng.standard_normal(t.size), lag)).at_rest
+    early = 60.0 - 60.0 * np.cos(2 * np.pi * 20 * t - 0.12)     # starts 0.36 % of the range up, falling
+    assert early[1] < early[0] <= early.min() + 0.01 * np.ptp(early)
+    assert not start_state(_rec(early, 7.0 - 7.0 * np.cos(2 * np.pi * 20 * t - 1.32))).at_rest
 
 
 # ---------------------------------------------------------------------------

@@ -506,7 +506,8 @@ class Diagnosis:
 
     def nominal_at_bounds(self, tol=1e-3):
         """Search variables of the nominal FONBW within `tol` of a bound (as a
-        share of the range, of its logarithm for log-scaled ones)."""
+        share of the range, of its logarithm for log-scaled ones); read on the
+        search vector, so a σ held at its cap by raising ρ is not reported."""
         out = []
         for name, x, (lo, hi), lg in zip(self.space.names, self.base["x"], self.space.bounds,
                                          self.space.log_scale):

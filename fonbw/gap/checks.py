@@ -26,7 +26,8 @@ CONDITIONS = {"u_max": ("highest input", "V"), "u_min": ("lowest input", "V"),
 def coverage(train, validate, dt):
     """Validation conditions outside the training records' range.
 
-    Returns a list of {"condition", "train", "validate", "record"} for the
+    Returns a list of {"condition", "train", "validate", "record", "index"}
+    (the validation record's name and position) for the
     amplitude (max and min u), peak input rate, dominant frequency and
     longest hold (steady input) that exceed the training range by > 10 %.
     """
@@ -52,15 +53,16 @@ def coverage(train, validate, dt):
             "f95": max(s["f95"] for s in tr), "hold_s": max(s["hold_s"] for s in tr),
             "duration_s": max(s["duration_s"] for s in tr)}
     umin = min(s["u_min"] for s in tr)
-    for r in validate:
+    for i, r in enumerate(validate):
         s = stats(r)
         for k, lim in lims.items():
             # holds shorter than 50 ms are turning points, not holds
             if s[k] > 1.1 * lim + 1e-12 and (k != "hold_s" or s[k] > 0.05):
-                flags.append({"condition": k, "train": lim, "validate": s[k], "record": str(r.path)})
+                flags.append({"condition": k, "train": lim, "validate": s[k], "record": str(r.path), "index": i})
         span = max(lims["u_max"] - umin, 1e-9)
         if s["u_min"] < umin - 0.1 * span:
-            flags.append({"condition": "u_min", "train": umin, "validate": s["u_min"], "record": str(r.path)})
+            flags.append({"condition": "u_min", "train": umin, "validate": s["u_min"], "record": str(r.path),
+                          "index": i})
     return flags
 
 
@@ -76,7 +78,8 @@ def remaining(records, preds, sigma2, flags=()):
     sigma2 : float
         Noise floor σ² [µm²].
     flags : list of dict
-        :func:`coverage` flags; those of a record are listed with it.
+        :func:`coverage` flags of the same records in the same order; those
+        of a record are listed with it.
 
     Returns
     -------
@@ -89,8 +92,9 @@ def remaining(records, preds, sigma2, flags=()):
     total = sum(excess)
     out = [{"record": str(r.path), "share": e / total if total > 0 else 0.0,
             "rms": float(np.sqrt(np.mean((r.y - p) ** 2))),
-            "outside": [f for f in flags if f["record"] == str(r.path)]}
-           for r, p, e in zip(records, preds, excess)]
+            # by position: records read from memory can share a name
+            "outside": [f for f in flags if f.get("index", i) == i and f["record"] == str(r.path)]}
+           for i, (r, p, e) in enumerate(zip(records, preds, excess))]
     return sorted(out, key=lambda d: -d["share"])
 
 
