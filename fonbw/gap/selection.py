@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import math
 
+from .checks import CONDITIONS
+
 __all__ = ["pick_best", "retry_pool", "verdict"]
 
 
@@ -140,8 +142,6 @@ def verdict(accepted, candidates, *, mse0, mse, excess0, at_floor, steps, covera
 
 def _left_text(remaining, at_bounds, unexplained):
     """Where the unexplained part of a gap lies, for the verdict's message ('' if nowhere in particular)."""
-    from .checks import CONDITIONS
-
     text = ""
     top = remaining[0] if remaining else None
     # one record carrying most of what is left is worth naming
