@@ -474,6 +474,7 @@ class Diagnosis:
         """The :class:`DiagnosisResult` of the finished stages."""
         for c in self.candidates:
             c["accepted"] = c["effect"] in self.accepted
+        at_bounds = self.nominal_at_bounds()
         self.candidates.sort(key=lambda c: -(c["gap_closed"] if c["gap_closed"] is not None else -math.inf))
         self.steps.append({"label": "noise floor", "rms_validate": math.sqrt(self.sigma2)})
         verdict = selection.verdict(
@@ -482,7 +483,7 @@ class Diagnosis:
             params=self.att["fitter"].effect_params(self.current["fit"], self.current["eff"]),
             form=self.form, start=self.start_report(),
             remaining=checks.remaining(self.val_s, self.current["pred"], self.sigma2, self.coverage),
-            at_bounds=self.nominal_at_bounds())
+            at_bounds=at_bounds)
         self.timing["total_s"] = time.perf_counter() - self.t_start
         given = self.model_given
         nominal = {
@@ -494,7 +495,7 @@ class Diagnosis:
                 [given.simulate(r.u, self.dt) for r in self.val]))) if given is not None else None),
             "reference": self.ref_info,
             "attributed_on": self.att["core"],
-            "at_bounds": self.nominal_at_bounds(),
+            "at_bounds": at_bounds,
         }
         records = {"train": [str(r.path) for r in self.train], "validate": [str(r.path) for r in self.val],
                    "start": {k: [s.to_dict() for s in v] for k, v in self.starts.items()}}

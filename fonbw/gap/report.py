@@ -17,6 +17,7 @@ import json
 import math
 
 from ..io import atomic_open
+from .checks import flag_text
 
 __all__ = ["write_json", "write_html"]
 
@@ -120,11 +121,6 @@ def _loop_figure(plt, loops):
     return _png(fig)
 
 
-def _outside(flags):
-    """The coverage conditions a validation record exceeds, as text ('no' for none)."""
-    return "; ".join(f"{f['condition']} {f['validate']:.4g} (training {f['train']:.4g})" for f in flags) or "no"
-
-
 def write_html(result, path):
     """Write a self-contained HTML report of a :func:`fonbw.gap.diagnose` result."""
     figs = _figures(result)
@@ -159,7 +155,8 @@ def write_html(result, path):
     loop_img = f'<img src="{figs["loops"]}" alt="loop-shape residual">' if "loops" in figs else ""
     left = "".join(
         f"<tr><td>{esc(r['record'])}</td><td>{100 * r['share']:.1f}</td><td>{r['rms']:.4g}</td>"
-        f"<td>{esc(_outside(r['outside']))}</td></tr>" for r in v.get("remaining", []))
+        f"<td>{esc('; '.join(flag_text(f) for f in r['outside']) or 'no')}</td></tr>"
+        for r in v.get("remaining", []))
     cov = "".join(f"<li>{esc(c['record'])}: {esc(c['condition'])} {c['validate']:.4g} (training up to {c['train']:.4g})</li>"
                   for c in v.get("coverage", [])) or "<li>none</li>"
     page = f"""<!DOCTYPE html>

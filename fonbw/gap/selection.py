@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from .checks import CONDITIONS
+from .checks import flag_text
 
 __all__ = ["pick_best", "retry_pool", "verdict"]
 
@@ -148,10 +148,7 @@ def _left_text(remaining, at_bounds, unexplained):
     if top is not None and top["share"] >= 0.5:
         text += f"; {100 * top['share']:.0f} % of the gap left lies on {top['record']}"
         if top["outside"]:
-            beyond = ", ".join(f"{CONDITIONS.get(f['condition'], (f['condition'], ''))[0]} "
-                               f"{f['validate']:.4g} against {f['train']:.4g} "
-                               f"{CONDITIONS.get(f['condition'], ('', ''))[1]}".rstrip()
-                               for f in top["outside"])
+            beyond = ", ".join(flag_text(f) for f in top["outside"])
             text += (f", beyond the training records ({beyond}): the models extrapolate there; "
                      "a training record that covers it would tell")
     if unexplained and at_bounds:
