@@ -42,9 +42,7 @@ def _windows(bench, model, T=2.0, win=0.2):
 
 def main(argv=None):
     from fonbw.bench import Bench
-    from fonbw.compensate.rest import rest_start_meta, with_rest_cycle
-    from fonbw.identify import identify
-    from fonbw.reproduce import input_range, table4, table4_training
+    from fonbw.reproduce import table4, table4_models, table4_training
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -53,25 +51,19 @@ def main(argv=None):
                     help="hold a FONBW search variable (e.g. lam2=1)")
     ap.add_argument("--windows", action="store_true")
     a = ap.parse_args(argv)
-    bounds = {}
+    fixed = {}
     for item in a.fix:
         k, _, v = item.partition("=")
-        bounds[k] = (float(v), float(v))
+        fixed[k] = (float(v), float(v))
     print(f"load average {os.getloadavg()[0]:.1f}", flush=True)
     recs = table4_training(0)
-    lo, hi = input_range(recs)
-    cycled, burn = with_rest_cycle(recs, (lo, hi))
     bench = Bench(seed=0)
     for s in a.seeds:
         t0 = time.perf_counter()
-        fits, models = {}, {}
-        for name, kind in (("NBW", "nbw"), ("FONBW", "fonbw")):
-            res = identify(cycled, kind, seed=s, max_evals=a.max_evals, for_compensation=bench.dt,
-                           burn_in=burn, x0=models.get("NBW"),
-                           bounds=bounds if kind == "fonbw" and bounds else None)
-            m = res.model
-            m.meta = {**(m.meta or {}), "u_range": [lo, hi], "start": rest_start_meta((lo, hi))}
-            models[name], fits[name] = m, float(res.rms)
+        # the bench's records stay those of seed 0; only the search seed changes
+        models, fits = table4_models(bench.dt, seed=s, max_evals=a.max_evals, records=recs,
+                                     kinds=(("NBW", "nbw"), ("FONBW", "fonbw")),
+                                     bounds={"fonbw": fixed} if fixed else None)
         rows = table4(bench, models, bench.dt, T=2.0, limits=None, ideal=False)
         err = {(r["compensator"], r["trajectory"]): r["rms_error"] for r in rows}
         p = models["FONBW"].params

@@ -494,9 +494,11 @@ def reproduce_table4(out_dir=None, *, seed=0, max_evals=3000, T=2.0, models=None
 
 
 def table4_models(dt, *, seed=0, max_evals=3000, workers=None, progress=False,
-                  for_compensation=True, records=None, kinds=TABLE4_KINDS):
+                  for_compensation=True, records=None, kinds=TABLE4_KINDS, bounds=None):
     """Table 4's models, every kind identified on the same records after a rest
     cycle (and, with ``for_compensation``, invertible at ``dt`` [s] except Zhu).
+    ``bounds`` maps a kind to its search-bound overrides
+    (:func:`fonbw.identify.identify`'s ``bounds``), e.g. ``{"fonbw": {"lam2": (1, 1)}}``.
 
     Returns ``({name: model}, {name: training RMS [µm]})``.
     """
@@ -515,7 +517,7 @@ def table4_models(dt, *, seed=0, max_evals=3000, workers=None, progress=False,
         fc = dt if (for_compensation and kind != "zhu") else None
         res = identify(cycled, kind, seed=seed, max_evals=max_evals, workers=workers,
                        progress=progress, for_compensation=fc, burn_in=burn,
-                       x0=nbw if kind == "fonbw" else None)
+                       x0=nbw if kind == "fonbw" else None, bounds=(bounds or {}).get(kind))
         if kind == "nbw":
             nbw = res.model
         m = res.model
