@@ -232,6 +232,23 @@ def test_pi_core_with_creep_names_the_form_and_creep():
     assert [w["step"] for w in v["waterfall"]] == ["nominal", "form", "+creep", "noise floor"]
 
 
+@pytest.mark.slow
+def test_preisach_core_with_a_large_clip_names_the_form_on_top_of_it():
+    # the rail's 21 σ hides the form at the first layer (the reference closes
+    # 0.17 of the nominal's excess, under 0.2); on top of the clip the
+    # reference closes most of what FONBW + clip leaves
+    sc = tr.draw_scenario(13010, scale=1.0, family="preisach", mid_drive=0.0)
+    assert list(sc["injected"]) == ["clip"]
+    d = diagnose(sc["train"], sc["validate"], seed=1, **FAST).to_dict()
+    v = d["verdict"]
+    assert v["effects"] == ["clip"]
+    assert v["form"]["material"] and v["form"]["found_after_effects"]
+    assert v["form"]["gap_closed_nominals"] < 0.2 < v["form"]["gap_closed_after_effects"]
+    assert [w["step"] for w in v["waterfall"]] == ["nominal", "+clip", "form", "noise floor"]
+    assert v["gap_closed"] > 0.95 and d["nominal"]["attributed_on"] == "fonbw"
+    assert v["gap_closed"] == pytest.approx(v["waterfall"][2]["gap_closed_cum"])
+
+
 def _loro_by_hand(Phi, D, y, lens):
     # the reference as one column (its output with the weights fitted on
     # every record) under a free gain, refit with the effect's gains on the
@@ -283,3 +300,58 @@ def test_loro_on_the_reference_core_refits_only_the_effect(drift_um):
         assert out["pooled_ratio"] < 0.2
     else:
         assert out["pooled_ratio"] > 0.98
+
+
+# ---------------------------------------------------------------------------
+# the form judged on top of accepted effects
+
+
+def _judge(mse_fonbw_s, mse_ref_s, sigma=0.01, rms_tr=(0.02, 0.01), n_ref=12):
+    """form_on_effects on one validation record whose two predictions leave the
+    given MSEs [µm²] (white residuals of those variances), σ = `sigma` [µm]."""
+    from types import SimpleNamespace
+
+    from fonbw.gap import form as fm
+
+    rng = np.random.default_rng(0)
+    n = 20000
+    u = np.linspace(0, 100, n)
+    y = np.sin(u / 7.0)
+    e = rng.standard_normal(n)
+    e /= np.sqrt(np.mean(e * e))
+    rec = _rec(u, y)
+    d = SimpleNamespace(sigma2=sigma ** 2, min_gap_closed=0.2, floor_tol=0.2, seed=0, dt=rec.dt, N=3,
+                        val_s=[rec], fitter=SimpleNamespace(y=np.zeros(n), nx=5),
+                        ref_core=SimpleNamespace(n_params=n_ref))
+    fonbw_s = {"fit": {"rms": rms_tr[0]}, "pred": [y - np.sqrt(mse_fonbw_s) * e], "mse": mse_fonbw_s}
+    ref_s = {"fit": {"rms": rms_tr[1]}, "pred": [y - np.sqrt(mse_ref_s) * e], "mse": mse_ref_s}
+    return fm.form_on_effects(d, fonbw_s, ref_s)
+
+
+def test_form_on_effects_is_a_share_of_what_the_effects_leave():
+    s2 = 1e-4
+    # FONBW + S leaves 5 σ² (4 σ² over the floor); the reference + S 3 σ²: 2 σ² = 50 % of 4 σ²
+    out = _judge(5 * s2, 3 * s2)
+    assert out["passed"]
+    assert out["gap_closed_after_effects"] == pytest.approx(0.5, rel=1e-9)
+    assert out["bootstrap_after_effects"]["p10"] > 0 and out["where"] is not None
+    # 0.6 σ² of 4 σ² is 15 %, under the 20 % share
+    out = _judge(5 * s2, 4.4 * s2)
+    assert not out["passed"] and out["gap_closed_after_effects"] == pytest.approx(0.15, rel=1e-9)
+
+
+def test_form_on_effects_needs_half_a_noise_variance_the_floor_and_a_lower_bic():
+    s2 = 1e-4
+    # 0.4 σ² is 100 % of what is left over the floor, but under σ²/2
+    assert not _judge(1.4 * s2, 1.0 * s2)["passed"]
+    # FONBW + S at the floor (≤ 1.2 σ²) leaves nothing to judge
+    assert not _judge(1.19 * s2, 0.0)["passed"]
+    # the reference fits training no better: its extra parameters raise the BIC
+    out = _judge(5 * s2, 3 * s2, rms_tr=(0.01, 0.01))
+    assert not out["passed"] and out["delta_bic_after_effects"] == pytest.approx((12 - (5 + 3 + 1)) * np.log(20000))
+
+
+def test_form_on_effects_stands_when_fonbw_with_the_effects_diverges():
+    out = _judge(np.inf, 3e-4)
+    assert out["passed"] and out["fonbw_effects_diverged"]
+    assert not _judge(np.inf, np.inf)["passed"]

@@ -143,9 +143,11 @@ class Diagnosis:
 
     :func:`diagnose` is the front door (its parameters are this class's).
     :meth:`run` calls the stages in order: :meth:`fit_nominal`,
-    :meth:`localize_residual`, :meth:`attribute` (greedy steps, each
-    :meth:`try_candidates` — :meth:`refit_candidate` and
-    :meth:`check_candidate` per effect — then :func:`fonbw.gap.selection.pick_best`)
+    :meth:`localize_residual`, :meth:`form_stage`, :meth:`attribute` (greedy
+    steps, each :meth:`try_candidates` — :meth:`refit_candidate` and
+    :meth:`check_candidate` per effect — then :func:`fonbw.gap.selection.pick_best`),
+    the form judged on top of the accepted effects (:meth:`confirm` when they
+    were attributed on the reference, :meth:`form_after_effects` when on FONBW)
     and :meth:`result`. Every stage draws its random numbers from `seed`
     alone, so a seed gives the same result bit for bit.
     """
@@ -453,20 +455,59 @@ class Diagnosis:
                 "excess": self.mse_ref - self.sigma2}
 
     def confirm(self):
-        """With effects accepted on the reference, the form must still beat FONBW + the same effects."""
+        """With effects accepted on the reference, the form must still be material
+        on top of them (:func:`fonbw.gap.form.form_on_effects`) against FONBW + the same effects."""
         if self.att["core"] != "reference" or not self.accepted:
             return
         cur = self.current
-        ok, fit, pv, mse = fm.confirm_form(self, cur["fit"], cur["eff"], cur["mse"])
+        t0 = time.perf_counter()
+        out, fonbw_s = fm.confirm_form(self, cur)
+        self.timing["form_on_effects_s"] = time.perf_counter() - t0
+        mse = fonbw_s["mse"]
         self.form["confirmed_rms_fonbw_effects"] = math.sqrt(mse) if math.isfinite(mse) else None
-        if not ok:
+        self.form.update({k: v for k, v in out.items() if k not in ("passed", "where")})
+        if not out["passed"]:
             # FONBW with the effects explains as much: the effects stand, the form does not
             self.say("form not confirmed once the effects are added to FONBW")
             self.form.update(material=False, where=None)
             self.steps = [st for st in self.steps if st["label"] != "form"]
             if mse < cur["mse"]:
-                self.current = {**cur, "fit": fit, "mse": mse, "pred": pv}
+                self.current = {**cur, "fit": fonbw_s["fit"], "mse": mse, "pred": fonbw_s["pred"]}
                 self.steps[-1]["rms_validate"] = math.sqrt(mse)
+
+    def form_after_effects(self):
+        """With effects accepted on FONBW, is the form material on top of them?
+
+        Asked only when the reference alone beats FONBW alone. When it is, the reference + the same effects becomes the final
+        configuration and the form the waterfall's last step before the floor
+        (it was found after the effects, and the waterfall shows what was measured).
+        """
+        # the reference alone must beat FONBW alone on validation: one that
+        # wins only beside an effect takes up that block's misfit (a one-pole
+        # amplifier for a two-pole one on a FONBW core), not loop shape
+        if (self.att["core"] != "fonbw" or not self.accepted or self.at_floor
+                or not self.mse_ref < self.mse0):
+            return
+        cur = self.current
+        t0 = time.perf_counter()
+        ref_att = self._reference_att()
+        out, ref_s = fm.form_after_effects(self, cur, ref_att)
+        self.timing["form_on_effects_s"] = time.perf_counter() - t0
+        self.form.update({k: v for k, v in out.items() if k not in ("passed", "where")})
+        self.say(f"form on top of {', '.join(self.accepted)}: closes {out['gap_closed_after_effects']} of "
+                 f"what they leave, {'material' if out['passed'] else 'not material'} "
+                 f"({self.timing['form_on_effects_s']:.1f} s)")
+        if not out["passed"]:
+            return
+        mse = ref_s["mse"]
+        # the form's share of the excess gap is then what it closes on top of the effects
+        self.form.update(material=True, where=out["where"], found_after_effects=True,
+                         gap_closed_nominals=self.form["gap_closed"],
+                         gap_closed=float((cur["mse"] - mse) / self.excess0))
+        self.att = {**ref_att, "attributed_on": "fonbw"}
+        self.current = {**cur, "fit": ref_s["fit"], "mse": mse, "mse_tr": ref_s["fit"]["rms"] ** 2,
+                        "pred": ref_s["pred"]}
+        self.steps.append({"label": "form", "rms_validate": math.sqrt(mse)})
 
     # -- 4. verdict --------------------------------------------------------
 
@@ -494,7 +535,7 @@ class Diagnosis:
             "given_model_rms_validate": (math.sqrt(checks.mse(self.val_s, self.cut_va(
                 [given.simulate(r.u, self.dt) for r in self.val]))) if given is not None else None),
             "reference": self.ref_info,
-            "attributed_on": self.att["core"],
+            "attributed_on": self.att.get("attributed_on", self.att["core"]),
             "at_bounds": at_bounds,
         }
         records = {"train": [str(r.path) for r in self.train], "validate": [str(r.path) for r in self.val],
@@ -539,6 +580,7 @@ class Diagnosis:
         self.form_stage()
         self.attribute()
         self.confirm()
+        self.form_after_effects()
         return self.result()
 
 

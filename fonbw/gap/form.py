@@ -19,9 +19,18 @@ a :class:`fonbw.gap.attribute.Diagnosis` ``d``:
     validation records, material like an effect (share ≥ ``min_gap_closed``,
     ΔBIC < 0 on training with the reference's parameter count, Bayesian
     block bootstrap p10 > 0), with :func:`where` on the loop.
+:func:`form_on_effects`
+    the form judged on top of the accepted effects S: MSE(FONBW + S) −
+    MSE(ref + S) must be a material part of what S leaves. Used both ways:
 :func:`confirm_form`
-    with effects S accepted on the reference, FONBW + S is refit: the form
-    stays material only if MSE(FONBW + S) − MSE(ref + S) is still material.
+    with S accepted on the reference, FONBW + S is refit: the form stays
+    material only if it still is on top of S.
+:func:`form_after_effects`
+    with S accepted on FONBW (the form not material on the nominals alone,
+    but the reference alone better than FONBW alone), the reference + S is
+    refit: the form is named when it is material on top of S. A large effect hides the form at the first layer, where shares are
+    of the whole excess, and the reference alone absorbs a lag or a drift
+    worse than FONBW does.
 """
 from __future__ import annotations
 
@@ -37,7 +46,8 @@ from .fitter import Fitter, nominal_search
 from .localize import _features, branch, reversal_age
 from .reference import ReferenceHysteresis
 
-__all__ = ["fit_reference", "second_chance", "check_form", "confirm_form", "where"]
+__all__ = ["fit_reference", "second_chance", "check_form", "form_on_effects", "confirm_form", "form_after_effects",
+           "where"]
 
 
 def _stack(ref, recs, theta, skip):
@@ -135,19 +145,66 @@ def check_form(d):
     return out
 
 
-def confirm_form(d, fit_ref_s, eff, mse_ref_s):
-    """Is the form still material once the accepted effects are added to both nominals?
+def form_on_effects(d, fonbw_s, ref_s):
+    """Is the form material on top of the effects S, accepted on either nominal?
 
-    Refits FONBW + `eff` locally from the FONBW nominal (the effects' parameters
-    from the reference's fit). Returns (material, fit, validation predictions, MSE).
+    `fonbw_s`, `ref_s`: FONBW + S and the reference + S (``fit``, ``pred``,
+    ``mse``). Material when MSE(FONBW + S) is above the floor and the
+    reference + S lowers it by at least ``min_gap_closed`` of its excess over
+    σ² and by σ²/2, lowers the training BIC (the reference's parameter count)
+    and passes the bootstrap. A share of what S leaves, not of the nominal's
+    excess: a large effect would otherwise hide any form beside it. A FONBW
+    + S that diverges on a validation record leaves the form standing.
+
+    Returns dict ``passed``, ``gap_closed_after_effects`` (that share),
+    ``delta_bic_after_effects``, ``bootstrap_after_effects``, ``where``.
     """
-    zero_tr = d.yref_tr
-    fit = d.fitter.refit(eff, d.base["x"], fit_ref_s["th"], zero_tr, evals=d.refit_evals, seed=d.seed)
+    s2 = d.sigma2
+    if not math.isfinite(fonbw_s["mse"]) and math.isfinite(ref_s["mse"]):
+        # FONBW + S diverges on a validation input (a refit Bouc-Wen with σ < 1/2
+        # has no bounded state for every input): it cannot stand in for the form
+        return {"passed": True, "gap_closed_after_effects": None, "delta_bic_after_effects": None,
+                "bootstrap_after_effects": None, "where": None, "fonbw_effects_diverged": True}
+    gap = fonbw_s["mse"] - ref_s["mse"]
+    left = fonbw_s["mse"] - s2
+    ntr = len(d.fitter.y)
+    dbic = (ntr * math.log(max(ref_s["fit"]["rms"] ** 2, 1e-300) / max(fonbw_s["fit"]["rms"] ** 2, 1e-300))
+            + (d.ref_core.n_params - (d.fitter.nx + d.N + 1)) * math.log(ntr))
+    material = bool(fonbw_s["mse"] > (1.0 + d.floor_tol) * s2 and math.isfinite(gap)
+                    and gap >= d.min_gap_closed * left and gap >= 0.5 * s2)
+    boot = checks.bootstrap(d.val_s, fonbw_s["pred"], ref_s["pred"], s2, d.seed) if material and dbic < 0 else None
+    passed = bool(material and dbic < 0 and boot["p10"] > 0)
+    return {"passed": passed,
+            "gap_closed_after_effects": float(gap / left) if left > 0 and math.isfinite(gap) else None,
+            "delta_bic_after_effects": float(dbic), "bootstrap_after_effects": boot,
+            "where": where(d.val_s, fonbw_s["pred"], ref_s["pred"], d.dt) if passed else None}
+
+
+def confirm_form(d, ref_s):
+    """With effects S accepted on the reference (`ref_s`: ``fit``, ``eff``,
+    ``pred``, ``mse``), refit FONBW + S locally from the FONBW nominal (the
+    effects' parameters from the reference's fit) and judge the form on top
+    of S (:func:`form_on_effects`). Returns (finding, FONBW + S as ``fit``,
+    ``pred``, ``mse``)."""
+    eff = ref_s["eff"]
+    fit = d.fitter.refit(eff, d.base["x"], ref_s["fit"]["th"], d.yref_tr, evals=d.refit_evals, seed=d.seed)
     pv = d.cut_va(d.fitter.predict(d.val, fit, eff, d.yref_va))
-    mse = checks.mse(d.val_s, pv)
-    gap = mse - mse_ref_s
-    ok = bool(gap >= 0.5 * d.min_gap_closed * d.excess0 and gap > 0.1 * d.sigma2)
-    return ok, fit, pv, mse
+    fonbw_s = {"fit": fit, "pred": pv, "mse": checks.mse(d.val_s, pv)}
+    return form_on_effects(d, fonbw_s, ref_s), fonbw_s
+
+
+def form_after_effects(d, fonbw_s, ref_att):
+    """With effects S accepted on FONBW (`fonbw_s`: ``fit``, ``eff``, ``pred``,
+    ``mse``), refit the reference + S locally from the reference nominal (the
+    effects' parameters from FONBW's fit; `ref_att` the reference's
+    attribution context) and judge the form on top of S. Returns (finding,
+    reference + S as ``fit``, ``pred``, ``mse``)."""
+    eff, fr = fonbw_s["eff"], ref_att["fitter"]
+    fit = fr.refit(eff, d.base_ref["x"], fonbw_s["fit"]["th"], ref_att["yref_tr"], evals=d.refit_evals,
+                   seed=d.seed)
+    pv = d.cut_va(fr.predict(d.val, fit, eff, ref_att["yref_va"]))
+    ref_s = {"fit": fit, "pred": pv, "mse": checks.mse(d.val_s, pv)}
+    return form_on_effects(d, fonbw_s, ref_s), ref_s
 
 
 def where(records, p0, p1, dt, n_bins=8):
