@@ -466,6 +466,8 @@ class Diagnosis:
         mse = fonbw_s["mse"]
         self.form["confirmed_rms_fonbw_effects"] = math.sqrt(mse) if math.isfinite(mse) else None
         self.form.update({k: v for k, v in out.items() if k not in ("passed", "where")})
+        self.say(f"form on top of {', '.join(self.accepted)}: closes {out['gap_closed_after_effects']} of what "
+                 f"FONBW + them leaves ({self.timing['form_on_effects_s']:.1f} s)")
         if not out["passed"]:
             # FONBW with the effects explains as much: the effects stand, the form does not
             self.say("form not confirmed once the effects are added to FONBW")
