@@ -276,16 +276,9 @@ def _cosim_sections(res):
     return secs
 
 
-def _form_text(form):
-    """One phrase on the hysteresis-form finding of a gap verdict."""
-    if not form or form.get("gap_closed") is None:
-        return "not assessed"
-    where = (form.get("where") or {}).get("dominant")
-    return (f"{'material' if form.get('material') else 'not material'} (the reference hysteresis closes "
-            f"{form['gap_closed']:.3g} of the gap{', mostly in ' + where if where and form.get('material') else ''})")
-
-
 def _gap_sections(out_dir, bench, res):
+    from .gap.selection import form_text
+
     secs = []
     gap = res["gap"]
     if gap:
@@ -297,7 +290,7 @@ def _gap_sections(out_dir, bench, res):
                            [[c["effect"], c["gap_closed"], "yes" if c.get("accepted") else "no"]
                             for c in gap["candidates"]])
                 + f"\n\n**Verdict**: {v.get('message', '')}. Hysteresis form: "
-                + _form_text(v.get("form"))
+                + form_text(v.get("form"))
                 + f"; unmodelled effects {', '.join(v['effects']) or 'none'}; gap closed by both {v['gap_closed']:.3g}; "
                 + ("unexplained part remains." if v.get("unexplained") else "explained.")
                 + "\n\n" + md_table(["step", "validation RMS [µm]", "gap closed (cumulative)"],

@@ -444,6 +444,11 @@ def test_blind_amplifier_lag_is_not_taken_for_a_delay():
     assert v["gap_closed"] > 0.75
     assert v["remaining"][0]["record"].endswith("sine20>") and v["remaining"][0]["share"] > 0.5
     assert {f["condition"] for f in v["remaining"][0]["outside"]} >= {"rate_p99"}
+    # a FONBW core has no form: the rate-dependent reference beside the one-pole
+    # block would take up its misfit (0.84 of what it leaves) if it were asked,
+    # but the reference alone is worse than FONBW alone
+    assert not v["form"]["material"] and v["form"]["gap_closed"] < 0
+    assert [w["step"] for w in v["waterfall"]] == ["nominal", "+amplifier", "noise floor"]
     # the one-pole candidate's corner sits between the truth's two poles' lag sum
     # (1/(2π·250) + 1/(2π·1000) → 204 Hz) and the main pole
     assert 150.0 < v["params"]["amplifier"]["f_c"] < 400.0

@@ -351,7 +351,21 @@ def test_form_on_effects_needs_half_a_noise_variance_the_floor_and_a_lower_bic()
     assert not out["passed"] and out["delta_bic_after_effects"] == pytest.approx((12 - (5 + 3 + 1)) * np.log(20000))
 
 
-def test_form_on_effects_stands_when_fonbw_with_the_effects_diverges():
-    out = _judge(np.inf, 3e-4)
-    assert out["passed"] and out["fonbw_effects_diverged"]
-    assert not _judge(np.inf, np.inf)["passed"]
+def test_form_stands_when_fonbw_with_the_effects_diverges():
+    from types import SimpleNamespace
+
+    from fonbw.gap import form as fm
+
+    rec = _rec(np.linspace(0, 100, 5000), np.zeros(5000))
+    fit = {"rms": 0.01, "th": [np.zeros(0)]}
+    d = SimpleNamespace(sigma2=1e-4, min_gap_closed=0.2, floor_tol=0.2, seed=0, dt=rec.dt, N=3, val_s=[rec],
+                        val=[rec], base={"x": np.zeros(5)}, yref_tr=None, yref_va=None, refit_evals=0,
+                        cut_va=lambda p: p, fitter=SimpleNamespace(
+                            y=np.zeros(5000), nx=5, refit=lambda *a, **k: fit,
+                            predict=lambda recs, *a: [np.full(len(r.u), np.inf) for r in recs]),
+                        ref_core=SimpleNamespace(n_params=12))
+    ref_s = {"fit": fit, "eff": [], "pred": [np.zeros(5000)], "mse": 2e-4}
+    out, fonbw_s = fm.confirm_form(d, ref_s)
+    assert out["passed"] and out["fonbw_effects_diverged"] and not np.isfinite(fonbw_s["mse"])
+    # judged directly, a non-finite MSE on either side is never material
+    assert not _judge(np.inf, 3e-4)["passed"] and not _judge(5e-4, np.inf)["passed"]

@@ -457,7 +457,7 @@ class Diagnosis:
     def confirm(self):
         """With effects accepted on the reference, the form must still be material
         on top of them (:func:`fonbw.gap.form.form_on_effects`) against FONBW + the same effects."""
-        if self.att["core"] != "reference" or not self.accepted:
+        if not self.accepted:
             return
         cur = self.current
         t0 = time.perf_counter()
@@ -466,16 +466,23 @@ class Diagnosis:
         mse = fonbw_s["mse"]
         self.form["confirmed_rms_fonbw_effects"] = math.sqrt(mse) if math.isfinite(mse) else None
         self.form.update({k: v for k, v in out.items() if k not in ("passed", "where")})
-        self.say(f"form on top of {', '.join(self.accepted)}: closes {out['gap_closed_after_effects']} of what "
-                 f"FONBW + them leaves ({self.timing['form_on_effects_s']:.1f} s)")
+        self.say(f"form on top of {', '.join(self.accepted)}: closes {_share(out)} of what FONBW + them "
+                 f"leaves, {'material' if out['passed'] else 'not material'} "
+                 f"({self.timing['form_on_effects_s']:.1f} s)")
         if not out["passed"]:
             # FONBW with the effects explains as much: the effects stand, the form does not
             self.say("form not confirmed once the effects are added to FONBW")
             self.form.update(material=False, where=None)
             self.steps = [st for st in self.steps if st["label"] != "form"]
             if mse < cur["mse"]:
-                self.current = {**cur, "fit": fonbw_s["fit"], "mse": mse, "pred": fonbw_s["pred"]}
+                # the final configuration is then FONBW's: its parameters are read with FONBW's fitter
+                self.current = {**cur, "fit": fonbw_s["fit"], "mse": mse, "mse_tr": fonbw_s["fit"]["rms"] ** 2,
+                                "pred": fonbw_s["pred"]}
+                self.att = {**self._fonbw_att(), "attributed_on": "reference"}
                 self.steps[-1]["rms_validate"] = math.sqrt(mse)
+        elif out["where"] is not None:
+            # where the reference corrects FONBW once both carry the effects
+            self.form["where"] = out["where"]
 
     def form_after_effects(self):
         """With effects accepted on FONBW, is the form material on top of them?
@@ -487,8 +494,7 @@ class Diagnosis:
         # the reference alone must beat FONBW alone on validation: one that
         # wins only beside an effect takes up that block's misfit (a one-pole
         # amplifier for a two-pole one on a FONBW core), not loop shape
-        if (self.att["core"] != "fonbw" or not self.accepted or self.at_floor
-                or not self.mse_ref < self.mse0):
+        if not self.accepted or self.at_floor or not self.mse_ref < self.mse0:
             return
         cur = self.current
         t0 = time.perf_counter()
@@ -496,7 +502,7 @@ class Diagnosis:
         out, ref_s = fm.form_after_effects(self, cur, ref_att)
         self.timing["form_on_effects_s"] = time.perf_counter() - t0
         self.form.update({k: v for k, v in out.items() if k not in ("passed", "where")})
-        self.say(f"form on top of {', '.join(self.accepted)}: closes {out['gap_closed_after_effects']} of "
+        self.say(f"form on top of {', '.join(self.accepted)}: closes {_share(out)} of "
                  f"what they leave, {'material' if out['passed'] else 'not material'} "
                  f"({self.timing['form_on_effects_s']:.1f} s)")
         if not out["passed"]:
@@ -581,9 +587,17 @@ class Diagnosis:
         self.localize_residual()
         self.form_stage()
         self.attribute()
-        self.confirm()
-        self.form_after_effects()
+        # the form judged on top of the accepted effects, from the nominal they were attributed on
+        if self.att["core"] == "reference":
+            self.confirm()
+        else:
+            self.form_after_effects()
         return self.result()
+
+
+def _share(out):
+    g = out["gap_closed_after_effects"]
+    return "–" if g is None else f"{g:.3f}"
 
 
 def _preroll(rec, b):

@@ -26,11 +26,13 @@ a :class:`fonbw.gap.attribute.Diagnosis` ``d``:
     with S accepted on the reference, FONBW + S is refit: the form stays
     material only if it still is on top of S.
 :func:`form_after_effects`
-    with S accepted on FONBW (the form not material on the nominals alone,
-    but the reference alone better than FONBW alone), the reference + S is
-    refit: the form is named when it is material on top of S. A large effect hides the form at the first layer, where shares are
-    of the whole excess, and the reference alone absorbs a lag or a drift
-    worse than FONBW does.
+    with S accepted on FONBW, the form not material on the nominals alone
+    (a large effect hides it: shares there are of the whole excess) but the
+    reference alone better than FONBW alone, the reference + S is refit: the
+    form is named when it is material on top of S. When the reference alone
+    is worse, it is not asked: a reference that wins only beside an effect
+    takes up that block's misfit (a one-pole amplifier block for a two-pole
+    amplifier), not loop shape.
 """
 from __future__ import annotations
 
@@ -139,7 +141,8 @@ def check_form(d):
     material = bool(not d.at_floor and gc >= d.min_gap_closed and d.mse0 - d.mse_ref > 0.1 * d.sigma2)
     boot = checks.bootstrap(d.val_s, d.p0_va, d.pref_va, d.sigma2, d.seed) if material and dbic < 0 else None
     passed = bool(material and dbic < 0 and boot["p10"] > 0)
-    out = {"material": passed, "gap_closed": float(gc) if math.isfinite(gc) else None,
+    out = {"material": passed, "found_after_effects": False,
+           "gap_closed": float(gc) if math.isfinite(gc) else None,
            "delta_bic": float(dbic), "bootstrap": boot, "reference": d.ref_info,
            "where": where(d.val_s, d.p0_va, d.pref_va, d.dt) if passed else None}
     return out
@@ -153,18 +156,14 @@ def form_on_effects(d, fonbw_s, ref_s):
     reference + S lowers it by at least ``min_gap_closed`` of its excess over
     σ² and by σ²/2, lowers the training BIC (the reference's parameter count)
     and passes the bootstrap. A share of what S leaves, not of the nominal's
-    excess: a large effect would otherwise hide any form beside it. A FONBW
-    + S that diverges on a validation record leaves the form standing.
+    excess: a large effect would otherwise hide any form beside it. Not
+    material when either MSE is not finite.
 
     Returns dict ``passed``, ``gap_closed_after_effects`` (that share),
-    ``delta_bic_after_effects``, ``bootstrap_after_effects``, ``where``.
+    ``delta_bic_after_effects``, ``bootstrap_after_effects``, ``where`` (of
+    the correction reference + S − FONBW + S, when passed).
     """
     s2 = d.sigma2
-    if not math.isfinite(fonbw_s["mse"]) and math.isfinite(ref_s["mse"]):
-        # FONBW + S diverges on a validation input (a refit Bouc-Wen with σ < 1/2
-        # has no bounded state for every input): it cannot stand in for the form
-        return {"passed": True, "gap_closed_after_effects": None, "delta_bic_after_effects": None,
-                "bootstrap_after_effects": None, "where": None, "fonbw_effects_diverged": True}
     gap = fonbw_s["mse"] - ref_s["mse"]
     left = fonbw_s["mse"] - s2
     ntr = len(d.fitter.y)
@@ -184,12 +183,18 @@ def confirm_form(d, ref_s):
     """With effects S accepted on the reference (`ref_s`: ``fit``, ``eff``,
     ``pred``, ``mse``), refit FONBW + S locally from the FONBW nominal (the
     effects' parameters from the reference's fit) and judge the form on top
-    of S (:func:`form_on_effects`). Returns (finding, FONBW + S as ``fit``,
-    ``pred``, ``mse``)."""
+    of S (:func:`form_on_effects`); a FONBW + S that diverges on a validation
+    record leaves the form standing (``fonbw_effects_diverged``). Returns
+    (finding, FONBW + S as ``fit``, ``pred``, ``mse``)."""
     eff = ref_s["eff"]
     fit = d.fitter.refit(eff, d.base["x"], ref_s["fit"]["th"], d.yref_tr, evals=d.refit_evals, seed=d.seed)
     pv = d.cut_va(d.fitter.predict(d.val, fit, eff, d.yref_va))
     fonbw_s = {"fit": fit, "pred": pv, "mse": checks.mse(d.val_s, pv)}
+    if not math.isfinite(fonbw_s["mse"]) and math.isfinite(ref_s["mse"]):
+        # FONBW + S diverges on a validation input (a refit Bouc-Wen with σ < 1/2
+        # has no bounded state for every input): it cannot stand in for the form
+        return {"passed": True, "gap_closed_after_effects": None, "delta_bic_after_effects": None,
+                "bootstrap_after_effects": None, "where": None, "fonbw_effects_diverged": True}, fonbw_s
     return form_on_effects(d, fonbw_s, ref_s), fonbw_s
 
 

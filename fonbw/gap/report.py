@@ -5,7 +5,8 @@ against the noise floor, RMS versus time, binned RMS versus input rate,
 amplitude, branch and time since reversal), the ranking table of the
 candidates, the hysteresis form with the loop-shape residual (FONBW's and
 the reference's residual versus the input; needs the result object) and a
-waterfall nominal → form → +effect … → noise floor, all from the result alone (a :class:`fonbw.gap.DiagnosisResult` or its ``to_dict()``); the
+waterfall nominal → form → +effect … → noise floor (the form after the
+effects when it was found on top of them), all from the result alone (a :class:`fonbw.gap.DiagnosisResult` or its ``to_dict()``); the
 PNGs are embedded as base64, so the page is one file.
 """
 from __future__ import annotations
@@ -18,6 +19,7 @@ import math
 
 from ..io import atomic_open
 from .checks import flag_text
+from .selection import form_text
 
 __all__ = ["write_json", "write_html"]
 
@@ -97,7 +99,7 @@ def _figures(result):
         ax.text(i, v, f"{v:.3g}", ha="center", va="bottom", fontsize=8)
     ax.set_xticks(range(len(steps)), [s["label"] for s in steps], fontsize=8)
     ax.set_ylabel("validation RMS [µm]")
-    ax.set_title("waterfall: nominal → form → effects → noise floor", fontsize=9)
+    ax.set_title("waterfall: what each step leaves, down to the noise floor", fontsize=9)
     figs["waterfall"] = _png(fig)
     loops = getattr(result, "loops", None)
     if loops:
@@ -143,12 +145,7 @@ def write_html(result, path):
         f"<td>{r['excess_rms']:.4g}</td><td>{esc('; '.join(f'{a:.0f}–{b:.0f} Hz (×{m:.0f})' for a, b, m in r['spectrum']['excess_bands'][:5]))}</td></tr>"
         for r in result["localization"]["records"])
     fo = v.get("form") or {}
-    wh = fo.get("where") or {}
-    form_txt = (f"material: {fo.get('material')}; gap closed by the reference hysteresis "
-                f"{fo['gap_closed']:.3f}" if fo.get("gap_closed") is not None else "not assessed")
-    if wh:
-        form_txt += (f"; concentrated in {wh['dominant']} (top {wh['top']:.2f}, bottom {wh['bottom']:.2f}, "
-                     f"minor loops {wh['minor_loops']:.2f} of the correction's energy)")
+    form_txt = form_text(fo)
     wf = "".join(f"<tr><td>{esc(w['step'])}</td><td>{w['rms_validate']:.4g}</td><td>{w['gap_closed_cum']:.3f}</td></tr>"
                  for w in v.get("waterfall", []))
     st = v.get("start") or {}

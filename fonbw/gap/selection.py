@@ -11,7 +11,7 @@ import math
 
 from .checks import flag_text
 
-__all__ = ["pick_best", "retry_pool", "verdict"]
+__all__ = ["pick_best", "retry_pool", "verdict", "form_text"]
 
 
 def pick_best(results, tie_margin):
@@ -87,7 +87,13 @@ def verdict(accepted, candidates, *, mse0, mse, excess0, at_floor, steps, covera
     steps, coverage, params
         Reported as they are (steps of the waterfall, coverage flags, effect parameters).
     form : dict, optional
-        The hysteresis-form finding (``material``, ``gap_closed``, ``where``, …).
+        The hysteresis-form finding: ``material``, ``gap_closed`` (the form's
+        share of the excess gap: on the nominals alone, or on top of the
+        accepted effects when ``found_after_effects``; then the nominals'
+        share is ``gap_closed_nominals``), ``where``, ``delta_bic`` and
+        ``bootstrap`` (the nominals alone) and, once effects are accepted,
+        ``gap_closed_after_effects`` (share of what FONBW + the effects
+        leaves), ``delta_bic_after_effects``, ``bootstrap_after_effects``.
     start : dict, optional
         How the records start (burn-ins).
     remaining : list of dict, optional
@@ -138,6 +144,23 @@ def verdict(accepted, candidates, *, mse0, mse, excess0, at_floor, steps, covera
     if start and start.get("mid_drive"):
         out["message"] += "; " + start["message"]
     return out
+
+
+def form_text(form):
+    """One phrase on a verdict's hysteresis-form finding (the demo's report and the HTML report)."""
+    if not form or form.get("gap_closed") is None:
+        return "not assessed"
+    material = bool(form.get("material"))
+    text = (f"{'material' if material else 'not material'}: the reference hysteresis closes "
+            f"{form['gap_closed']:.3g} of the gap")
+    if material and form.get("found_after_effects"):
+        text += (f", found on top of the accepted effects ({form['gap_closed_after_effects']:.3g} of what "
+                 "they leave)")
+    wh = form.get("where") or {}
+    if material and wh:
+        text += (f"; mostly in {wh['dominant']} (top {wh['top']:.2f}, bottom {wh['bottom']:.2f}, minor loops "
+                 f"{wh['minor_loops']:.2f} of the correction's energy)")
+    return text
 
 
 def _left_text(remaining, at_bounds, unexplained):
