@@ -130,12 +130,23 @@ def start_state(record, hold: int = HOLD_SAMPLES, max_share: float = MAX_BURN_IN
     Returns
     -------
     StartState
+
+    Raises
+    ------
+    ValueError
+        When ``u`` or ``y`` holds a NaN or an infinity (naming the record,
+        the column and the first such sample).
     """
     u = np.asarray(record.u, float)
     y = np.asarray(record.y, float) if record.y is not None else np.zeros_like(u)
     n = len(u)
     if n == 0:
         return StartState(True, 0, "empty record")
+    for name, x in (("u", u), ("y", y)):
+        bad = np.flatnonzero(~np.isfinite(x))
+        if bad.size:
+            raise ValueError(f"record {getattr(record, 'path', '<memory>')}: column {name} is not finite at "
+                             f"{bad.size} sample(s), the first at index {bad[0]}; fill or cut them before use")
     span_u = float(np.ptp(u))
     if span_u == 0.0:
         return StartState(True, 0, "input constant over the record")

@@ -369,3 +369,12 @@ def test_form_stands_when_fonbw_with_the_effects_diverges():
     assert out["passed"] and out["fonbw_effects_diverged"] and not np.isfinite(fonbw_s["mse"])
     # judged directly, a non-finite MSE on either side is never material
     assert not _judge(np.inf, 3e-4)["passed"] and not _judge(5e-4, np.inf)["passed"]
+
+
+@pytest.mark.parametrize("col", ["u", "y"])
+def test_start_refuses_a_non_finite_sample_naming_record_column_and_index(col):
+    u = np.linspace(0.0, 100.0, 500)
+    y = 0.1 * u
+    (u if col == "u" else y)[37] = np.nan
+    with pytest.raises(ValueError, match=rf"column {col} is not finite at 1 sample\(s\), the first at index 37"):
+        start_state(_rec(u, y))
