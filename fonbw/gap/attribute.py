@@ -146,9 +146,8 @@ class Diagnosis:
     :meth:`localize_residual`, :meth:`form_stage`, :meth:`attribute` (greedy
     steps, each :meth:`try_candidates` — :meth:`refit_candidate` and
     :meth:`check_candidate` per effect — then :func:`fonbw.gap.selection.pick_best`),
-    the form judged on top of the accepted effects (:meth:`confirm` when they
-    were attributed on the reference, :meth:`form_after_effects` when on FONBW)
-    and :meth:`result`. Every stage draws its random numbers from `seed`
+    the form judged on top of the accepted effects
+    (:func:`fonbw.gap.form.judge_on_effects`) and :meth:`result`. Every stage draws its random numbers from `seed`
     alone, so a seed gives the same result bit for bit.
     """
 
@@ -429,19 +428,21 @@ class Diagnosis:
         if not self.at_floor and fm.second_chance(self):
             self.localize_residual()
         self.form = fm.check_form(self)
-        self.att = self._fonbw_att()
+        self.att = self.fonbw_att()
         self.say(f"form: gap closed {self.form['gap_closed']}, "
                  f"{'material' if self.form['material'] else 'not material'}")
         if self.form["material"]:
-            self.att = self._reference_att()
+            self.att = self.reference_att()
 
-    def _fonbw_att(self):
+    def fonbw_att(self):
+        """The attribution context on the FONBW nominal (fitters, base fit, nominal outputs)."""
         return {"core": "fonbw", "fitter": self.fitter, "fitter_c": self.fitter_c, "base": self.base,
                 "mse": self.mse0, "pred": self.p0_va, "yref_tr": self.yref_tr, "yref_c": self.yref_c,
                 "yref_va": self.yref_va, "global_evals": self.global_evals, "popsize": 16,
                 "excess": self.excess0}
 
-    def _reference_att(self):
+    def reference_att(self):
+        """The attribution context on the reference nominal."""
         zr = [np.zeros(len(r.u)) for r in self.train]
         fc = Fitter(self.coarse, core=self.ref_core, skip=[int(math.ceil(b / self.q)) for b in self.skip_tr])
         yref_tr = self.fitter_ref.predict(self.train, self.base_ref, [], zr)
@@ -453,69 +454,6 @@ class Diagnosis:
                 "yref_c": [y[::self.q] for y in yref_tr], "yref_va": yref_va,
                 "global_evals": min(self.global_evals, 120), "popsize": 8,
                 "excess": self.mse_ref - self.sigma2}
-
-    def confirm(self):
-        """With effects accepted on the reference, the form must still be material
-        on top of them (:func:`fonbw.gap.form.form_on_effects`) against FONBW + the same effects."""
-        if not self.accepted:
-            return
-        cur = self.current
-        t0 = time.perf_counter()
-        out, fonbw_s = fm.confirm_form(self, cur)
-        self.timing["form_on_effects_s"] = time.perf_counter() - t0
-        mse = fonbw_s["mse"]
-        self.form["confirmed_rms_fonbw_effects"] = math.sqrt(mse) if math.isfinite(mse) else None
-        self.form.update({k: v for k, v in out.items() if k not in ("passed", "where")})
-        self.say(f"form on top of {', '.join(self.accepted)}: closes {_share(out)} of what FONBW + them "
-                 f"leaves, {'material' if out['passed'] else 'not material'} "
-                 f"({self.timing['form_on_effects_s']:.1f} s)")
-        if not out["passed"]:
-            # FONBW with the effects explains as much: the effects stand, the form does not
-            self.say("form not confirmed once the effects are added to FONBW")
-            self.form.update(material=False, where=None)
-            self.steps = [st for st in self.steps if st["label"] != "form"]
-            if mse < cur["mse"]:
-                # the final configuration is then FONBW's: its parameters are read with FONBW's fitter
-                self.current = {**cur, "fit": fonbw_s["fit"], "mse": mse, "mse_tr": fonbw_s["fit"]["rms"] ** 2,
-                                "pred": fonbw_s["pred"]}
-                self.att = {**self._fonbw_att(), "attributed_on": "reference"}
-                self.steps[-1]["rms_validate"] = math.sqrt(mse)
-        elif out["where"] is not None:
-            # where the reference corrects FONBW once both carry the effects
-            self.form["where"] = out["where"]
-
-    def form_after_effects(self):
-        """With effects accepted on FONBW, is the form material on top of them?
-
-        Asked only when the reference alone beats FONBW alone. When it is, the reference + the same effects becomes the final
-        configuration and the form the waterfall's last step before the floor
-        (it was found after the effects, and the waterfall shows what was measured).
-        """
-        # the reference alone must beat FONBW alone on validation: one that
-        # wins only beside an effect takes up that block's misfit (a one-pole
-        # amplifier for a two-pole one on a FONBW core), not loop shape
-        if not self.accepted or self.at_floor or not self.mse_ref < self.mse0:
-            return
-        cur = self.current
-        t0 = time.perf_counter()
-        ref_att = self._reference_att()
-        out, ref_s = fm.form_after_effects(self, cur, ref_att)
-        self.timing["form_on_effects_s"] = time.perf_counter() - t0
-        self.form.update({k: v for k, v in out.items() if k not in ("passed", "where")})
-        self.say(f"form on top of {', '.join(self.accepted)}: closes {_share(out)} of "
-                 f"what they leave, {'material' if out['passed'] else 'not material'} "
-                 f"({self.timing['form_on_effects_s']:.1f} s)")
-        if not out["passed"]:
-            return
-        mse = ref_s["mse"]
-        # the form's share of the excess gap is then what it closes on top of the effects
-        self.form.update(material=True, where=out["where"], found_after_effects=True,
-                         gap_closed_nominals=self.form["gap_closed"],
-                         gap_closed=float((cur["mse"] - mse) / self.excess0))
-        self.att = {**ref_att, "attributed_on": "fonbw"}
-        self.current = {**cur, "fit": ref_s["fit"], "mse": mse, "mse_tr": ref_s["fit"]["rms"] ** 2,
-                        "pred": ref_s["pred"]}
-        self.steps.append({"label": "form", "rms_validate": math.sqrt(mse)})
 
     # -- 4. verdict --------------------------------------------------------
 
@@ -587,17 +525,8 @@ class Diagnosis:
         self.localize_residual()
         self.form_stage()
         self.attribute()
-        # the form judged on top of the accepted effects, from the nominal they were attributed on
-        if self.att["core"] == "reference":
-            self.confirm()
-        else:
-            self.form_after_effects()
+        fm.judge_on_effects(self)
         return self.result()
-
-
-def _share(out):
-    g = out["gap_closed_after_effects"]
-    return "–" if g is None else f"{g:.3f}"
 
 
 def _preroll(rec, b):

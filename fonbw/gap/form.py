@@ -33,6 +33,9 @@ a :class:`fonbw.gap.attribute.Diagnosis` ``d``:
     is worse, it is not asked: a reference that wins only beside an effect
     takes up that block's misfit (a one-pole amplifier block for a two-pole
     amplifier), not loop shape.
+:func:`judge_on_effects`
+    the stage that runs one of the two, from the nominal the effects were
+    attributed on, and updates the diagnosis.
 """
 from __future__ import annotations
 
@@ -49,7 +52,7 @@ from .localize import _features, branch, reversal_age
 from .reference import ReferenceHysteresis
 
 __all__ = ["fit_reference", "second_chance", "check_form", "form_on_effects", "confirm_form", "form_after_effects",
-           "where"]
+           "judge_on_effects", "where"]
 
 
 def _stack(ref, recs, theta, skip):
@@ -210,6 +213,72 @@ def form_after_effects(d, fonbw_s, ref_att):
     pv = d.cut_va(fr.predict(d.val, fit, eff, ref_att["yref_va"]))
     ref_s = {"fit": fit, "pred": pv, "mse": checks.mse(d.val_s, pv)}
     return form_on_effects(d, fonbw_s, ref_s), ref_s
+
+
+def judge_on_effects(d):
+    """The form judged on top of the accepted effects, from the nominal they
+    were attributed on: on the reference, the form stands or is revoked
+    (:func:`confirm_form`); on FONBW, it can be named after them
+    (:func:`form_after_effects`). Updates ``d.form``, ``d.current``,
+    ``d.att`` and ``d.steps``."""
+    if not d.accepted:
+        return
+    t0 = time.perf_counter()
+    if d.att["core"] == "reference":
+        out = _keep_or_revoke(d)
+    elif d.at_floor or not d.mse_ref < d.mse0:
+        # the reference alone must beat FONBW alone on validation: one that
+        # wins only beside an effect takes up that block's misfit (a one-pole
+        # amplifier for a two-pole one on a FONBW core), not loop shape
+        return
+    else:
+        out = _name_after(d)
+    d.timing["form_on_effects_s"] = dt_s = time.perf_counter() - t0
+    g = out["gap_closed_after_effects"]
+    d.say(f"form on top of {', '.join(d.accepted)}: closes {'–' if g is None else f'{g:.3f}'} of what FONBW "
+          f"+ them leaves, {'material' if out['passed'] else 'not material'} ({dt_s:.1f} s)")
+
+
+def _keep_or_revoke(d):
+    cur = d.current
+    out, fonbw_s = confirm_form(d, cur)
+    mse = fonbw_s["mse"]
+    d.form["confirmed_rms_fonbw_effects"] = math.sqrt(mse) if math.isfinite(mse) else None
+    d.form.update({k: v for k, v in out.items() if k not in ("passed", "where")})
+    if out["passed"]:
+        if out["where"] is not None:
+            # where the reference corrects FONBW once both carry the effects
+            d.form["where"] = out["where"]
+        return out
+    # FONBW with the effects explains as much: the effects stand, the form does not
+    d.form.update(material=False, where=None)
+    d.steps = [st for st in d.steps if st["label"] != "form"]
+    if mse < cur["mse"]:
+        # the final configuration is then FONBW's: its parameters are read with FONBW's fitter
+        d.current = {**cur, "fit": fonbw_s["fit"], "mse": mse, "mse_tr": fonbw_s["fit"]["rms"] ** 2,
+                     "pred": fonbw_s["pred"]}
+        d.att = {**d.fonbw_att(), "attributed_on": "reference"}
+        d.steps[-1]["rms_validate"] = math.sqrt(mse)
+    return out
+
+
+def _name_after(d):
+    # a material form becomes the waterfall's last step before the floor: it
+    # was found after the effects, and the waterfall shows what was measured
+    cur = d.current
+    ref_att = d.reference_att()
+    out, ref_s = form_after_effects(d, cur, ref_att)
+    d.form.update({k: v for k, v in out.items() if k not in ("passed", "where")})
+    if not out["passed"]:
+        return out
+    mse = ref_s["mse"]
+    # the form's share of the excess gap is then what it closes on top of the effects
+    d.form.update(material=True, where=out["where"], found_after_effects=True,
+                  gap_closed_nominals=d.form["gap_closed"], gap_closed=float((cur["mse"] - mse) / d.excess0))
+    d.att = {**ref_att, "attributed_on": "fonbw"}
+    d.current = {**cur, "fit": ref_s["fit"], "mse": mse, "mse_tr": ref_s["fit"]["rms"] ** 2, "pred": ref_s["pred"]}
+    d.steps.append({"label": "form", "rms_validate": math.sqrt(mse)})
+    return out
 
 
 def where(records, p0, p1, dt, n_bins=8):
