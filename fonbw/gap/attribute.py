@@ -147,8 +147,9 @@ class Diagnosis:
     steps, each :meth:`try_candidates` — :meth:`refit_candidate` and
     :meth:`check_candidate` per effect — then :func:`fonbw.gap.selection.pick_best`),
     the form judged on top of the accepted effects
-    (:func:`fonbw.gap.form.judge_on_effects`) and :meth:`result`. Every stage draws its random numbers from `seed`
-    alone, so a seed gives the same result bit for bit.
+    (:func:`fonbw.gap.form.judge_on_effects`) and :meth:`result`. Every stage
+    draws its random numbers from `seed` alone, so a seed gives the same
+    result bit for bit.
     """
 
     def __init__(self, train_records, validate_records, model=None, seed=0, progress=False,
