@@ -19,7 +19,7 @@ from gap_truth import draw_scenario, scenario_family
 
 
 def main(argv=None):
-    from fonbw.start import REST_TOL, _first_rise, start_state
+    from fonbw.start import REST_TOL, rise_excess, start_state
 
     a, b = (int(x) for x in (argv or sys.argv[1:3]))
     for seed in range(a, b):
@@ -32,8 +32,7 @@ def main(argv=None):
                 span = float(np.ptp(u))
                 if not (span > 0 and u[0] <= u.min() + REST_TOL * span):
                     continue
-                rise = _first_rise(u)
-                above = (y[0] - y[:rise].min()) / max(float(np.ptp(y)), 1e-300)
+                above = rise_excess(u, y) / max(float(np.ptp(y)), 1e-300)
                 mid = cut.get(kind) is not None and cut[kind][0] == i
                 st = start_state(r)
                 print(f"{seed} {fam:8s} {sc['kind']:8s} {','.join(sc['injected']) or '-':18s} {kind:8s} "

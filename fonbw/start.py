@@ -17,7 +17,7 @@ import dataclasses
 
 import numpy as np
 
-__all__ = ["StartState", "start_state", "burn_ins", "HOLD_SAMPLES", "MAX_BURN_IN_SHARE"]
+__all__ = ["StartState", "start_state", "rise_excess", "burn_ins", "HOLD_SAMPLES", "MAX_BURN_IN_SHARE"]
 
 #: Samples the input must be held at its first value to call the start at rest.
 HOLD_SAMPLES = 10
@@ -108,6 +108,17 @@ def _first_rise(u: np.ndarray) -> int:
     return int(np.argmax(u >= u.min() + 0.5 * float(np.ptp(u)))) + 1
 
 
+def rise_excess(u, y) -> float:
+    """How far the output starts above its bottom over the input's first rise [µm].
+
+    The rise runs until the input first reaches the middle of its range
+    (:func:`_first_rise`); :func:`start_state` calls a start from the bottom
+    at rest when this is within ``REST_TOL_Y`` of the output range.
+    """
+    u, y = np.asarray(u, float), np.asarray(y, float)
+    return float(y[0] - y[:_first_rise(u)].min())
+
+
 def _sweep_end(u: np.ndarray, tol: float) -> int:
     """First sample index after the input has reached both record extremes."""
     lo = np.flatnonzero(u <= u.min() + tol)
@@ -159,8 +170,7 @@ def start_state(record, hold: int = HOLD_SAMPLES, max_share: float = MAX_BURN_IN
     # the output's bottom over the input's first rise, not over the record: a
     # fast or rate-dependent drive can take the output below its start later
     # on (undershoot at 20 Hz), which says nothing about how the record began
-    rise = _first_rise(u)
-    bottom_y = y[0] <= y[:rise].min() + REST_TOL_Y * max(float(np.ptp(y)), 1e-300) + tol_y
+    bottom_y = rise_excess(u, y) <= REST_TOL_Y * max(float(np.ptp(y)), 1e-300) + tol_y
     if k >= hold and bottom_u and _held(u, k, tol_u) and _held(y, k, tol_y):
         return StartState(True, 0, f"input held at {u[0]:.4g} V for {k} samples and output still: at rest")
     if bottom_u and bottom_y:
