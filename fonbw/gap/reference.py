@@ -84,6 +84,14 @@ Initial state (``initial=``), from the first sample u_0 of each record:
     a stage after a previous full cycle down to u_0 (the virtual bench's
     start). On the bench it lowers the training RMS from 0.080 to 0.021 µm
     (m = 24, k = 0).
+``"ascended"``
+    z_j = u_0 - r_j: at the end of an ascending branch that came from below
+    every threshold, the state of a stage whose last move before the record
+    was upward (or a Preisach operator started from negative saturation):
+    relays with α < u_0 are up, all others down, so relays with β below the
+    record's lowest input switch up on the first rise and never back. The
+    first rise is then a virgin branch that no later rise repeats, which
+    "rest" and "descended" both miss.
 ``"burn-in"``
     for records that start mid-drive: the first ``burn_in`` seconds of the
     record (default: the whole record) are run once before it, from rest, and
@@ -108,7 +116,7 @@ from .blas import single_thread
 __all__ = ["ReferenceHysteresis", "ReferenceFit", "play_bank", "RATES", "INITIALS"]
 
 RATES = (None, "threshold", "fractional", "both")
-INITIALS = ("rest", "descended", "burn-in")
+INITIALS = ("rest", "descended", "ascended", "burn-in")
 
 #: Largest ratio of the Gram-Cholesky factor's diagonal for which the normal
 #: equations are trusted (about cond(Φ); squared it must stay well inside 1e16).
@@ -250,7 +258,7 @@ class ReferenceHysteresis:
         Degree of the polynomial in x = (u - u_c) / u_h (powers 1 … degree).
     rate : {None, "threshold", "fractional"}
         Rate dependence and its nonlinear parameters θ.
-    initial : {"rest", "descended", "burn-in"}
+    initial : {"rest", "descended", "ascended", "burn-in"}
         Play states at t = 0 of every record.
     burn_in : float, optional
         Seconds of the record's start run before it with ``initial="burn-in"``;
@@ -387,7 +395,12 @@ class ReferenceHysteresis:
             nb = n if self.burn_in is None else min(n, max(1, int(round(self.burn_in / dt))))
             u = np.concatenate([u[:nb], u])
         r = self.thresholds
-        z = u[0] + r if self.initial == "descended" else np.full(r.size, u[0])
+        if self.initial == "descended":
+            z = u[0] + r
+        elif self.initial == "ascended":
+            z = u[0] - r
+        else:
+            z = np.full(r.size, u[0])
         lo, hi = self._range()
         x = (u - 0.5 * (lo + hi)) / (0.5 * (hi - lo))
         m, q = self.n_plays, self.n_play_columns
