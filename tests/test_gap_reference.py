@@ -10,7 +10,7 @@ FS = 5000.0
 DT = 1.0 / FS
 
 
-def preisach(u, n_lines=150, width=35.0, skew=100.0):
+def preisach(u, n_lines=150, width=35.0, skew=100.0, start="descended"):
     """A continuous Preisach truth [µm] with density f(α - β) h((α + β)/2).
 
     f(2r) = exp(-(2r / width)²) on its own grid of ``n_lines`` lines
@@ -19,11 +19,12 @@ def preisach(u, n_lines=150, width=35.0, skew=100.0):
     the reference's family). The relays on a line with centre below the
     line's boundary z_r are up, and z_r follows a play of threshold r, so the
     line integrates in closed form to 2 skew (h(z_r) - h(c_0)). It starts at
-    the end of a descent to u_0 (z_r = u_0 + r); output zeroed there.
+    the end of a descent to u_0 (z_r = u_0 + r) or, with ``start="ascended"``,
+    of a rise to u_0 from below every relay (z_r = u_0 - r); output zeroed there.
     """
     r = (np.arange(n_lines) + 0.5) * 70.0 / n_lines
     f = np.exp(-((2 * r / width) ** 2)) * (70.0 / n_lines)
-    z = u[0] + r
+    z = u[0] + r if start == "descended" else u[0] - r
     y = np.empty(len(u))
     for k, uk in enumerate(u):
         z = np.minimum(np.maximum(z, uk - r), uk + r)
@@ -133,6 +134,30 @@ def test_rate_independent_truth_fitted_within_one_percent_and_bounds_respected()
     Phi = fit.reference.columns(tr.u, DT)
     free = np.linalg.lstsq(Phi, tr.y, rcond=None)[0][: fit.reference.n_play_columns]
     assert np.any(free < 0) and np.any(w == 0.0)
+
+
+def test_ascended_state_is_the_state_after_a_rise_from_below_every_threshold():
+    u = eq19_input(FS, 2.0)[1][1000:]          # starts mid-range
+    rise = np.linspace(u[0] - 200.0, u[0], 400, endpoint=False)
+    kw = dict(n_plays=8, level=2, u_range=(0.0, 120.0))
+    after_rise = ReferenceHysteresis(initial="rest", **kw).columns(np.r_[rise, u], DT)[rise.size:]
+    asc = ReferenceHysteresis(initial="ascended", **kw).columns(u, DT)
+    assert np.max(np.abs(asc - after_rise)) < 1e-12
+    # and not the descended one: the plays start on the other side
+    desc = ReferenceHysteresis(initial="descended", **kw).columns(u, DT)
+    assert np.max(np.abs(asc - desc)) > 1.0
+
+
+def test_ascended_start_fits_a_truth_whose_relays_start_down():
+    # records starting at 0 V after a rise from far below: relays with
+    # β < 0 switch up on the first rise and stay up, a virgin branch
+    recs = [record(u, preisach(u, start="ascended"))
+            for u in (eq19_input(FS, 6.0)[1], sine_input(2.0, FS, periods=3)[1])]
+    span = np.ptp(recs[0].y)
+    rms = {init: ReferenceHysteresis(initial=init, level=2).fit(recs).rms_train
+           for init in ("rest", "descended", "ascended")}
+    assert rms["ascended"] < 0.01 * span
+    assert rms["ascended"] < 0.3 * min(rms["rest"], rms["descended"])
 
 
 def test_burn_in_beats_rest_on_a_record_starting_mid_drive():
