@@ -233,20 +233,20 @@ def test_pi_core_with_creep_names_the_form_and_creep():
 
 
 @pytest.mark.slow
-def test_preisach_core_with_a_large_clip_names_the_form_on_top_of_it():
-    # the rail's 21 σ hides the form at the first layer (the reference closes
-    # 0.17 of the nominal's excess, under 0.2); on top of the clip the
-    # reference closes most of what FONBW + clip leaves
+def test_preisach_core_with_a_large_clip_names_the_form_and_the_clip():
+    # a 21 σ rail on a Preisach core (harness seed 13010): the reference,
+    # started after an ascent like the core's relays, reaches 0.11 µm where
+    # FONBW leaves 0.38 µm, so the form is found first; the clip is then
+    # attributed on the reference and the form confirmed on top of it
     sc = tr.draw_scenario(13010, scale=1.0, family="preisach", mid_drive=0.0)
     assert list(sc["injected"]) == ["clip"]
     d = diagnose(sc["train"], sc["validate"], seed=1, **FAST).to_dict()
     v = d["verdict"]
-    assert v["effects"] == ["clip"]
-    assert v["form"]["material"] and v["form"]["found_after_effects"]
-    assert v["form"]["gap_closed_nominals"] < 0.2 < v["form"]["gap_closed_after_effects"]
-    assert [w["step"] for w in v["waterfall"]] == ["nominal", "+clip", "form", "noise floor"]
-    assert v["gap_closed"] > 0.95 and d["nominal"]["attributed_on"] == "fonbw"
-    assert v["gap_closed"] == pytest.approx(v["waterfall"][2]["gap_closed_cum"])
+    assert v["effects"] == ["clip"] and d["nominal"]["reference"]["initial"] == "ascended"
+    assert v["form"]["material"] and not v["form"]["found_after_effects"]
+    assert v["form"]["gap_closed"] > 0.8 and v["form"]["gap_closed_after_effects"] > 0.5
+    assert [w["step"] for w in v["waterfall"]] == ["nominal", "form", "+clip", "noise floor"]
+    assert v["gap_closed"] > 0.95 and d["nominal"]["attributed_on"] == "reference"
 
 
 def _loro_by_hand(Phi, D, y, lens):
