@@ -351,6 +351,58 @@ def test_form_on_effects_needs_half_a_noise_variance_the_floor_and_a_lower_bic()
     assert not out["passed"] and out["delta_bic_after_effects"] == pytest.approx((12 - (5 + 3 + 1)) * np.log(20000))
 
 
+def _after_effects_case(mse_ref_alone):
+    """A diagnosis whose clip was accepted on FONBW (FONBW + clip leaves 5 σ²)
+    and whose reference + clip refit leaves 2 σ², σ = 0.01 µm; the reference
+    alone leaves `mse_ref_alone` [µm²] against FONBW alone's 20 σ²."""
+    from types import SimpleNamespace
+
+    n, s2 = 20000, 1e-4
+    rng = np.random.default_rng(0)
+    u = np.linspace(0, 100, n)
+    y = np.sin(u / 7.0)
+    e = rng.standard_normal(n)
+    e /= np.sqrt(np.mean(e * e))
+    rec = _rec(u, y)
+    ref_fitter = SimpleNamespace(refit=lambda *a, **k: {"rms": 0.01, "th": []},
+                                 predict=lambda recs, *a: [y - np.sqrt(2 * s2) * e])
+    steps = [{"label": "nominal", "rms_validate": np.sqrt(20 * s2)}, {"label": "+clip", "rms_validate": np.sqrt(5 * s2)}]
+    return SimpleNamespace(
+        sigma2=s2, min_gap_closed=0.2, floor_tol=0.2, seed=0, dt=rec.dt, N=3, val=[rec], val_s=[rec],
+        fitter=SimpleNamespace(y=np.zeros(n), nx=5), ref_core=SimpleNamespace(n_params=12),
+        accepted=["clip"], att={"core": "fonbw"}, at_floor=False, mse0=20 * s2, mse_ref=mse_ref_alone,
+        excess0=19 * s2, form={"material": False, "gap_closed": 0.26}, steps=steps,
+        current={"fit": {"rms": 0.02, "th": []}, "eff": [], "pred": [y - np.sqrt(5 * s2) * e], "mse": 5 * s2,
+                 "mse_tr": 4e-4},
+        base_ref={"x": np.zeros(0)}, refit_evals=0, cut_va=lambda p: p, timing={}, say=lambda *a: None,
+        reference_att=lambda: {"core": "reference", "fitter": ref_fitter, "yref_tr": None, "yref_va": None})
+
+
+def test_form_found_after_the_effects_comes_last_in_the_waterfall():
+    from fonbw.gap import form as fm
+
+    d = _after_effects_case(15e-4)
+    fm.judge_on_effects(d)
+    f = d.form
+    assert f["material"] and f["found_after_effects"] and f["gap_closed_nominals"] == 0.26
+    # what it closes on top of the clip: 3 σ² of the 4 σ² FONBW + clip leaves
+    # over the floor, and 3 σ² of the nominal's 19 σ² excess
+    assert f["gap_closed_after_effects"] == pytest.approx(0.75, rel=1e-9)
+    assert f["gap_closed"] == pytest.approx(3 / 19, rel=1e-9)
+    assert [s["label"] for s in d.steps] == ["nominal", "+clip", "form"]
+    assert d.steps[-1]["rms_validate"] == pytest.approx(np.sqrt(2e-4), rel=1e-9)
+    assert d.att["attributed_on"] == "fonbw" and d.current["mse"] == pytest.approx(2e-4, rel=1e-9)
+
+
+def test_form_not_asked_after_the_effects_when_the_reference_alone_loses():
+    from fonbw.gap import form as fm
+
+    d = _after_effects_case(25e-4)   # the reference alone worse than FONBW alone
+    fm.judge_on_effects(d)
+    assert d.form == {"material": False, "gap_closed": 0.26}
+    assert [s["label"] for s in d.steps] == ["nominal", "+clip"] and d.att == {"core": "fonbw"}
+
+
 def test_form_stands_when_fonbw_with_the_effects_diverges():
     from types import SimpleNamespace
 
