@@ -290,14 +290,15 @@ class Diagnosis:
 
     # -- 3. attribution ----------------------------------------------------
 
-    def refit_candidate(self, active, start):
+    def refit_candidate(self, active, start, att=None):
         """Refit the `active` library effects (the last is new) jointly with the
-        nominal model, from the configuration `start`.
+        nominal model, from the configuration `start`, in the attribution
+        context `att` (default: the current one).
 
         A global search on the decimated records, then a local refit at the
         full rate. Returns (fit, validation predictions, validation MSE [µm²]).
         """
-        a = self.att
+        a = self.att if att is None else att
         fitter, yref_tr = a["fitter"], a["yref_tr"]
         eff = [self.lib[i] for i in active]
         th0 = [start["th"][j] if j < len(start["th"]) else (e.grid[0] if len(e.names) else np.zeros(0))

@@ -60,8 +60,8 @@ from .reference import ReferenceHysteresis
 #: nothing more (0.052 µm).
 REFERENCE_DEGREE = 5
 
-__all__ = ["REFERENCE_DEGREE", "fit_reference", "second_chance", "check_form", "form_on_effects", "confirm_form", "form_after_effects",
-           "judge_on_effects", "where"]
+__all__ = ["REFERENCE_DEGREE", "fit_reference", "second_chance", "check_form", "form_on_effects", "confirm_form",
+           "form_after_effects", "judge_on_effects", "where"]
 
 
 def _stack(ref, recs, theta, skip):
@@ -233,14 +233,10 @@ def _fonbw_with(d, eff):
     if any(e.name not in names for e in eff):
         return None
     idx = [names.index(e.name) for e in eff]
-    saved, d.att = d.att, d.fonbw_att()
-    try:
-        start = d.base
-        for k in range(1, len(idx) + 1):
-            fit, pv, mse = d.refit_candidate(idx[:k], start)
-            start = fit
-    finally:
-        d.att = saved
+    att, start = d.fonbw_att(), d.base
+    for k in range(1, len(idx) + 1):
+        fit, pv, mse = d.refit_candidate(idx[:k], start, att=att)
+        start = fit
     return {"fit": fit, "pred": pv, "mse": mse}
 
 
