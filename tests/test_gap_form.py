@@ -143,6 +143,43 @@ def test_reference_core_matches_the_standalone_bounded_fit():
     assert A.shape == (sum(len(r.u) for r in recs), active.sum() + len(eff[0].taus))
 
 
+def test_reduced_basis_keeps_the_fit_and_spans_the_leading_play_directions():
+    from fonbw.gap.cores import ReferenceCore
+    from fonbw.gap.fitter import Fitter
+    from fonbw.gap.form import reduced_basis
+    from fonbw.gap.reference import ReferenceHysteresis
+
+    recs = _pi_records()
+    fit = ReferenceHysteresis(n_plays=12, rate=None, level=3).fit(recs)
+    ref, c = fit.reference, fit.weights
+    active = (c > ref.bounds[0]) | ~np.isfinite(ref.bounds[0])
+    A = np.concatenate([ref.columns(r.u, r.dt)[:, active] for r in recs])
+    npl = int(active[:ref.n_play_columns].sum())
+    q = int(active.sum())
+    assert npl > 6
+    B = reduced_basis(A, c[active], npl, 4)
+    assert B.shape == (q, 1 + 4 + q - npl)
+    assert reduced_basis(A, c[active], npl, npl - 1) is None
+    # the polynomial columns stay free, one by one
+    np.testing.assert_array_equal(B[npl:, 5:], np.eye(q - npl))
+    # the leading directions: orthonormal in the unit-norm play columns, and
+    # the projection of those columns onto them beats any other 4 directions
+    s = np.linalg.norm(A[:, :npl], axis=0)
+    W = B[:npl, 1:5] * s[:, None]
+    np.testing.assert_allclose(W.T @ W, np.eye(4), atol=1e-10)
+    P = A[:, :npl] / s
+    sv = np.linalg.svd(P, compute_uv=False)
+    captured = np.linalg.norm(P @ W) ** 2
+    assert captured == pytest.approx(np.sum(sv[:4] ** 2), rel=1e-9)
+    # the refit on the basis reproduces the bounded fit exactly
+    zero = [np.zeros(len(r.u)) for r in recs]
+    res = Fitter(recs, core=ReferenceCore(ref, (), active, B)).refit([], np.zeros(0), [], zero, evals=0)
+    assert res["rms"] == pytest.approx(fit.rms_train, rel=1e-7)
+    assert res["beta"][0] == pytest.approx(1.0, abs=1e-6)
+    with pytest.raises(ValueError, match="one per active column"):
+        ReferenceCore(ref, (), active, B[1:])
+
+
 def test_fitter_skips_the_burn_in_of_each_record():
     from fonbw.gap.cores import ReferenceCore
     from fonbw.gap.fitter import Fitter

@@ -19,7 +19,8 @@ and the output nonlinearity are appended).
     On the active set the bounded optimum is the unconstrained least-squares
     solution, so the refit solves plain least squares. X is empty; Φ of a
     record is built once and cached unless an input-side effect changes
-    the input.
+    the input. With a ``basis`` the refit re-weights a few fixed
+    combinations of the active columns instead of every one of them.
 """
 from __future__ import annotations
 
@@ -107,6 +108,10 @@ class ReferenceCore:
         Rate parameters (``reference.theta_names``).
     active : ndarray of bool, optional
         Columns kept (default: all).
+    basis : ndarray, optional
+        (n_active, r) combinations of the active columns that the refit
+        weighs (default: each active column on its own); see
+        :func:`fonbw.gap.form.reduced_basis`.
     """
 
     name = "reference"
@@ -114,25 +119,32 @@ class ReferenceCore:
     bounds: list = []
     log_scale: list = []
 
-    def __init__(self, reference, theta=(), active=None):
+    def __init__(self, reference, theta=(), active=None, basis=None):
         self.ref = reference
         self.theta_ = tuple(float(t) for t in theta)
         self.active = (np.ones(reference.n_columns, dtype=bool) if active is None
                        else np.asarray(active, dtype=bool))
-        self.n_base = int(self.active.sum())
+        self.basis = None if basis is None else np.asarray(basis, dtype=float)
+        if self.basis is not None and self.basis.shape[0] != int(self.active.sum()):
+            raise ValueError(f"basis needs {int(self.active.sum())} rows (one per active column), "
+                             f"got {self.basis.shape[0]}")
+        self.n_base = int(self.active.sum()) if self.basis is None else self.basis.shape[1]
         self._cache = {}
 
     @property
     def n_params(self) -> int:
         """Parameters a reference fit spends (active weights and θ), for the BIC."""
-        return self.n_base + len(self.theta_)
+        return int(self.active.sum()) + len(self.theta_)
 
     def local_bounds(self, x0):
         return []
 
     def phi(self, u, dt):
         """Active columns (q, n) of the reference on input `u` [V] at step `dt` [s]."""
-        return np.ascontiguousarray(self.ref.columns(u, dt, self.theta_)[:, self.active].T)
+        P = self.ref.columns(u, dt, self.theta_)[:, self.active]
+        if self.basis is not None:
+            P = P @ self.basis
+        return np.ascontiguousarray(P.T)
 
     def base(self, rec, X, Us, transformed):
         """Base columns (J, q, n); one Φ per record while the input is the record's own."""
