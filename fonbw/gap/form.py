@@ -64,11 +64,13 @@ REFERENCE_DEGREE = 5
 #: A Preisach density concentrated in its relay centres (a Gaussian of 15 V
 #: spread, say) is no quadratic along the lines. On two blind-harness
 #: Preisach cores (seeds 15001, 15011; noise 0.010 and 0.020 µm) the
-#: reference alone fitted 0.150 / 0.037 µm on training and 0.430 / 0.094 µm
-#: on the 1-Hz validation sine with degree 2, 0.023 / 0.020 and 0.086 /
-#: 0.027 µm with degree 6; a Prandtl–Ishlinskii core (15009) was at its
-#: noise floor with either. What degree 2 left, the output saturation block
-#: took up: six of seven false saturations of those nulls went away.
+#: reference alone, from its better start, fitted 0.093 / 0.037 µm on
+#: training and 0.326 / 0.094 µm on the 1-Hz validation sine with degree 2,
+#: 0.023 / 0.020 and 0.086 / 0.027 µm with degree 6 (degree 8: 0.021 /
+#: 0.020, 0.072 / 0.027); a Prandtl–Ishlinskii core (15009) was at its
+#: noise floor with any (``benchmarks/reference_level.py``). What degree 2
+#: left, the output saturation block took up: on the fifth held-out run's
+#: seeds, six of seven false saturations of null cases went away.
 REFERENCE_LEVEL = 6
 
 #: Play directions the joint refits re-weigh besides the fitted combination

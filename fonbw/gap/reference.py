@@ -63,7 +63,11 @@ The bench's output polynomial of the PI sum and the Preisach truth's density
 rising along the lines (loops wider at high voltage) are what k = 0 cannot
 follow; k = 2 can (a Preisach relay grid could too, but needs m (m + 1) / 2
 columns, 136 for m = 16 instead of 48, and the diagnosis filters and refits
-every column thousands of times). On its own truth FONBW is matched by
+every column thousands of times). A density concentrated in its relay
+centres needs more than k = 2: the diagnosis uses k = 6
+(:data:`fonbw.gap.form.REFERENCE_LEVEL`, measured there), and its joint
+refits re-weigh the plays along a few leading directions
+(:func:`fonbw.gap.form.reduced_basis`). On its own truth FONBW is matched by
 ``rate="fractional"``, as it should be. The rate variants: "threshold" alone finds
 the bench's rate law only partly from a training record below 1.5 Hz,
 "fractional" alone finds FONBW's μ = λ1 - λ2 (0.334 for 0.3337); "both"
