@@ -77,11 +77,13 @@ REFERENCE_LEVEL = 6
 #: (:func:`reduced_basis`); None: every active play column. Degree 6 leaves
 #: 40–65 active columns, and every candidate filters or rebuilds each one
 #: (a dynamics candidate took 41 s instead of 8); 16 directions keep the
-#: refits at the old cost with the same verdicts on the seeds above.
+#: refits at about the old cost, with the verdicts of every column on 14
+#: seeds of the fifth held-out run (BENCHMARKS.md).
 REFERENCE_DIRECTIONS = 16
 
-__all__ = ["REFERENCE_DEGREE", "REFERENCE_LEVEL", "REFERENCE_DIRECTIONS", "reduced_basis", "fit_reference", "second_chance", "check_form", "form_on_effects", "confirm_form",
-           "form_after_effects", "judge_on_effects", "where"]
+__all__ = ["REFERENCE_DEGREE", "REFERENCE_LEVEL", "REFERENCE_DIRECTIONS", "reduced_basis", "fit_reference",
+           "second_chance", "check_form", "form_on_effects", "confirm_form", "form_after_effects",
+           "judge_on_effects", "where"]
 
 
 def _stack(ref, recs, theta, skip):
