@@ -223,6 +223,25 @@ def test_coverage_flags_faster_validation():
     assert coverage([fast], [slow], DT) == []
 
 
+def test_coverage_flags_inputs_past_the_training_range_by_its_span():
+    t = np.arange(10000) * DT
+    zero = np.zeros(t.size)
+
+    def sine(lo, hi):
+        return Record.from_arrays(u=lo + (hi - lo) * (0.5 - 0.5 * np.cos(2 * np.pi * t)), y=zero, dt=DT)
+
+    # 5.2 V past 114.8 V is 4.5 % of the span: the memory sees relays training never turned
+    f = coverage([sine(0.0, 114.8)], [sine(0.0, 120.0)], DT)
+    assert [(x["condition"], x["train"], x["validate"]) for x in f] == [("u_max", 114.8, 120.0)]
+    assert coverage([sine(0.0, 114.8)], [sine(0.0, 116.8)], DT) == []   # 1.7 % of the span
+    # a drive below 0 V is judged by the span as well: the same range is no excess,
+    # 4 V past its top (4.2 %) is, and so is 4 V past its bottom
+    neg = sine(-100.0, -5.0)
+    assert coverage([neg], [sine(-100.0, -5.0)], DT) == []
+    assert [x["condition"] for x in coverage([neg], [sine(-100.0, -1.0)], DT)] == ["u_max"]
+    assert [x["condition"] for x in coverage([neg], [sine(-104.0, -5.0)], DT)] == ["u_min"]
+
+
 def test_remaining_shares_are_each_records_excess_over_the_floor():
     # residuals of known power: 0.3 µm and 0.1 µm square waves on 4000 and 2000 samples, σ² = 0.005
     a = Record.from_arrays(u=np.zeros(4000), y=0.3 * np.where(np.arange(4000) % 2, 1, -1), dt=DT, path="a")

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["CONDITIONS", "coverage", "flag_text", "remaining", "mse", "bootstrap", "loro"]
+__all__ = ["CONDITIONS", "AMPLITUDE_TOL", "coverage", "flag_text", "remaining", "mse", "bootstrap", "loro"]
 
 
 #: What each :func:`coverage` condition measures, and its unit.
@@ -23,13 +23,26 @@ CONDITIONS = {"u_max": ("highest input", "V"), "u_min": ("lowest input", "V"),
               "duration_s": ("duration", "s")}
 
 
+#: How far [share of the training inputs' span] a validation input may go
+#: past the training records' highest or lowest input before it is flagged.
+#: A hysteresis's memory turns every relay the input reaches, so past the
+#: training range every model extrapolates its density, however small the
+#: step: on a blind-harness Preisach core (seed 15001) a 1-Hz validation
+#: sine to 120 V against 114.8 V in training (4.5 % of the span) left its
+#: largest error, 0.79 µm, just after the turn at 120 V. The 2 % leave room
+#: for noise on a measured input.
+AMPLITUDE_TOL = 0.02
+
+
 def coverage(train, validate, dt):
     """Validation conditions outside the training records' range.
 
     Returns a list of {"condition", "train", "validate", "record", "index"}
-    (the validation record's name and position) for the
-    amplitude (max and min u), peak input rate, dominant frequency and
-    longest hold (steady input) that exceed the training range by > 10 %.
+    (the validation record's name and position) for the amplitude (max and
+    min u beyond the training range by more than :data:`AMPLITUDE_TOL` of its
+    span; the span, not the value, so that bipolar and offset drives are
+    judged alike), and for the peak input rate, dominant frequency, longest
+    hold (steady input) and duration that exceed the training's by > 10 %.
     """
     def stats(r):
         u = r.u
@@ -49,20 +62,23 @@ def coverage(train, validate, dt):
                 "f95": f95, "hold_s": hold * dt, "duration_s": len(u) * dt}
     tr = [stats(r) for r in train]
     flags = []
-    lims = {"u_max": max(s["u_max"] for s in tr), "rate_p99": max(s["rate_p99"] for s in tr),
-            "f95": max(s["f95"] for s in tr), "hold_s": max(s["hold_s"] for s in tr),
-            "duration_s": max(s["duration_s"] for s in tr)}
-    umin = min(s["u_min"] for s in tr)
+    lims = {"rate_p99": max(s["rate_p99"] for s in tr), "f95": max(s["f95"] for s in tr),
+            "hold_s": max(s["hold_s"] for s in tr), "duration_s": max(s["duration_s"] for s in tr)}
+    umin, umax = min(s["u_min"] for s in tr), max(s["u_max"] for s in tr)
+    tol = AMPLITUDE_TOL * max(umax - umin, 1e-9)
     for i, r in enumerate(validate):
         s = stats(r)
+        out = []
+        if s["u_max"] > umax + tol:
+            out.append(("u_max", umax))
+        if s["u_min"] < umin - tol:
+            out.append(("u_min", umin))
         for k, lim in lims.items():
             # holds shorter than 50 ms are turning points, not holds
             if s[k] > 1.1 * lim + 1e-12 and (k != "hold_s" or s[k] > 0.05):
-                flags.append({"condition": k, "train": lim, "validate": s[k], "record": str(r.path), "index": i})
-        span = max(lims["u_max"] - umin, 1e-9)
-        if s["u_min"] < umin - 0.1 * span:
-            flags.append({"condition": "u_min", "train": umin, "validate": s["u_min"], "record": str(r.path),
-                          "index": i})
+                out.append((k, lim))
+        flags += [{"condition": k, "train": lim, "validate": s[k], "record": str(r.path), "index": i}
+                  for k, lim in out]
     return flags
 
 
