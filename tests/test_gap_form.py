@@ -467,3 +467,32 @@ def test_start_refuses_a_non_finite_sample_naming_record_column_and_index(col):
     (u if col == "u" else y)[37] = np.nan
     with pytest.raises(ValueError, match=rf"column {col} is not finite at 1 sample\(s\), the first at index 37"):
         start_state(_rec(u, y))
+
+
+@pytest.mark.parametrize("core", ["fonbw", "reference"])
+def test_an_effect_is_material_by_the_same_share_on_either_nominal(core):
+    # the excess the nominal leaves is 1.0 (MSE 1.01, σ² 0.01); a first step
+    # needs 0.2 of it, a later step 0.1, and either 0.1 σ² of MSE. The fit
+    # here is worse on training (ΔBIC > 0), so no bootstrap or LORO is run
+    from types import SimpleNamespace
+
+    from fonbw.gap.attribute import Diagnosis
+
+    d = Diagnosis.__new__(Diagnosis)
+    d.sigma2, d.min_gap_closed, d.seed = 0.01, 0.2, 0
+    d.lib = [SimpleNamespace(names=["a"], lin_names=[], identified=lambda th: True)]
+    d.att = {"core": core, "excess": 1.0, "fitter": SimpleNamespace(y=np.zeros(1000))}
+    d.current = {"mse": 1.01, "mse_tr": 1e-4}
+    fit = {"rms": 0.02, "th": [np.zeros(1)]}
+
+    def material(step, mse):
+        ch = d.check_candidate(0, step, fit, None, mse, None)
+        assert ch["delta_bic"] > 0 and not ch["passed"] and "bootstrap" not in ch
+        return ch["material"], ch["gap_closed_step"]
+
+    assert material(0, 1.01 - 0.30) == (True, pytest.approx(0.30))
+    assert material(0, 1.01 - 0.19)[0] is False
+    assert material(1, 1.01 - 0.11) == (True, pytest.approx(0.11))
+    assert material(1, 1.01 - 0.09)[0] is False
+    d.sigma2, d.att["excess"], d.current["mse"] = 1.0, 0.3, 1.3  # 0.25 of the excess, 0.075 σ²
+    assert material(0, 1.3 - 0.075)[0] is False

@@ -345,13 +345,12 @@ class Diagnosis:
         k = len(lib[i].names) + len(lib[i].lin_names)
         ntr = len(self.att["fitter"].y)
         dbic = ntr * math.log(max(fit["rms"] ** 2, 1e-300) / cur["mse_tr"]) + k * math.log(ntr)
-        # on the reference an effect must explain most of what it leaves: a
-        # remainder that an effect explains only partly is mostly loop shape
-        # the reference cannot follow either, which an output block bends
-        # part of the way (a Preisach core's remainder taken for saturation)
-        need = self.min_gap_closed if self.att["core"] == "fonbw" else max(self.min_gap_closed, 0.5)
+        # the same share on either nominal: a reference that resolves the
+        # density along its plays leaves no loop shape for an output block to
+        # bend, and a remainder two effects share has no half for the first
+        need = self.min_gap_closed * (1.0 if step == 0 else 0.5)
         out = {"gap_closed_step": gc if math.isfinite(gc) else None, "delta_bic": dbic,
-               "material": bool(gc >= need * (1.0 if step == 0 else 0.5)
+               "material": bool(gc >= need
                                 and cur["mse"] - mse > 0.1 * sigma2)}
         if out["material"] and dbic < 0:
             out["bootstrap"] = checks.bootstrap(self.val_s, cur["pred"], pv, sigma2, self.seed)
