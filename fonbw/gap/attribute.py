@@ -111,7 +111,9 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
     max_effects : int
         Greedy steps.
     min_gap_closed : float
-        Part of the excess gap an effect must close to be material.
+        Part of the excess gap an effect must close to be material at the
+        first greedy step (half of it at later steps), on either nominal: the
+        excess is that of the nominal the effects are attributed on.
     floor_tol : float
         The gap is at the noise floor when MSE0 ≤ (1 + floor_tol) σ².
     tie_margin : float
