@@ -349,7 +349,7 @@ class Diagnosis:
         dbic = ntr * math.log(max(fit["rms"] ** 2, 1e-300) / cur["mse_tr"]) + k * math.log(ntr)
         # the same share on either nominal: a reference that resolves the
         # density along its plays leaves no loop shape for an output block to
-        # bend, and a remainder two effects share has no half for the first
+        # bend, and when two effects share a remainder neither closes half of it
         need = self.min_gap_closed * (1.0 if step == 0 else 0.5)
         out = {"gap_closed_step": gc if math.isfinite(gc) else None, "delta_bic": dbic,
                "material": bool(gc >= need
