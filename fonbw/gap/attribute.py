@@ -353,7 +353,7 @@ class Diagnosis:
         need = self.min_gap_closed * (1.0 if step == 0 else 0.5)
         out = {"gap_closed_step": gc if math.isfinite(gc) else None, "delta_bic": dbic,
                "material": bool(gc >= need
-                                and cur["mse"] - mse > 0.1 * sigma2)}
+                                and cur["mse"] - mse > checks.MIN_DROP * sigma2)}
         if out["material"] and dbic < 0:
             out["bootstrap"] = checks.bootstrap(self.val_s, cur["pred"], pv, sigma2, self.seed)
             out["loro"] = checks.loro(self.att["fitter"], cur["fit"], fit, cur["eff"], eff, self.att["yref_tr"])

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["CONDITIONS", "AMPLITUDE_TOL", "coverage", "flag_text", "remaining", "mse", "bootstrap", "loro"]
+__all__ = ["CONDITIONS", "AMPLITUDE_TOL", "MIN_DROP", "coverage", "flag_text", "remaining", "mse", "bootstrap", "loro"]
 
 
 #: What each :func:`coverage` condition measures, and its unit.
@@ -32,6 +32,12 @@ CONDITIONS = {"u_max": ("highest input", "V"), "u_min": ("lowest input", "V"),
 #: largest error, 0.79 µm, just after the turn at 120 V. The 2 % leave room
 #: for noise on a measured input.
 AMPLITUDE_TOL = 0.02
+
+
+#: Smallest drop of the validation MSE [share of the noise variance σ²] that
+#: counts as material, whatever share of the gap it is: near the noise floor
+#: a smaller drop moves the RMS by less than a twentieth of σ.
+MIN_DROP = 0.1
 
 
 def coverage(train, validate, dt):

@@ -198,7 +198,7 @@ def second_chance(d):
     """
     from ..identify import identify
 
-    if not d.mse_ref < d.mse0 - max(0.1 * d.sigma2, 0.5 * d.min_gap_closed * d.excess0):
+    if not d.mse_ref < d.mse0 - max(checks.MIN_DROP * d.sigma2, 0.5 * d.min_gap_closed * d.excess0):
         return False
     t0 = time.perf_counter()
     res = identify(d.coarse, "fonbw", seed=d.seed + 7919, max_evals=int(1.5 * d.budget), N=d.N,
@@ -223,7 +223,7 @@ def check_form(d):
     k_fonbw = d.fitter.nx + d.N + 1
     dbic = (ntr * math.log(max(d.base_ref["rms"] ** 2, 1e-300) / max(d.base["rms"] ** 2, 1e-300))
             + (d.ref_core.n_params - k_fonbw) * math.log(ntr))
-    material = bool(not d.at_floor and gc >= d.min_gap_closed and d.mse0 - d.mse_ref > 0.1 * d.sigma2)
+    material = bool(not d.at_floor and gc >= d.min_gap_closed and d.mse0 - d.mse_ref > checks.MIN_DROP * d.sigma2)
     boot = checks.bootstrap(d.val_s, d.p0_va, d.pref_va, d.sigma2, d.seed) if material and dbic < 0 else None
     passed = bool(material and dbic < 0 and boot["p10"] > 0)
     out = {"material": passed, "found_after_effects": False,
