@@ -146,6 +146,34 @@ def test_output_saturation_fit_equals_scipy_least_squares():
     assert b[-1] == pytest.approx(-0.7, abs=0.01)
 
 
+def test_a_stroke_limit_only_lowers_the_slope():
+    # data whose top steepens (c = +0.5): the bounded optimum is c = 0, which
+    # scipy's bounded least squares confirms; a compressive top keeps its c
+    from scipy.optimize import least_squares
+
+    rng = np.random.default_rng(5)
+    t = np.linspace(0.0, 1.0, 3000)
+    B = np.column_stack([np.sin(2 * np.pi * 2 * t), t, np.ones_like(t)])
+    s = fx.Saturation(0.0, 20.0)
+    th = np.array([11.0, 1.0])
+    z = B @ np.array([6.0, 4.0, 7.0])
+    A = np.column_stack([B, s.shape(z, th)[0]])
+
+    def res(p, y):
+        zz = B @ p[:-1]
+        return zz + p[-1] * s.shape(zz, th)[0] - y
+
+    for c_true in (0.5, -0.4):
+        y = z + c_true * s.shape(z, th)[0] + rng.normal(0.0, 0.01, t.size)
+        b, r = Fitter.fit_linear(A, y, (s, th))
+        x0 = np.r_[Fitter.solve(B, y)[0], -0.1]
+        ref = least_squares(res, x0, args=(y,), bounds=([-np.inf] * 3 + [-np.inf], [np.inf] * 3 + [0.0]),
+                            xtol=1e-14, ftol=1e-14, gtol=1e-14)
+        np.testing.assert_allclose(b, ref.x, rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(r, -ref.fun, atol=1e-8)
+        assert b[-1] == (0.0 if c_true > 0 else pytest.approx(c_true, abs=0.01))
+
+
 def test_solve_leaves_an_unexcited_regressor_at_zero():
     rng = np.random.default_rng(4)
     A = np.column_stack([rng.standard_normal(500), np.ones(500), np.full(500, 1e-300)])

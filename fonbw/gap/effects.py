@@ -341,6 +341,10 @@ class Saturation(Effect):
     lin_names = ("c",)
     units = {"knee": "µm", "width": "µm", "c": "1"}
     output_nonlinear = True
+    #: c ≤ 0: a stroke limit only lowers the slope. A top that steepens is no
+    #: limit but loop shape (a Prandtl–Ishlinskii envelope bending up), which
+    #: a free sign would credit to this block.
+    compressive = True
 
     def __init__(self, y_lo, y_hi):
         super().__init__()

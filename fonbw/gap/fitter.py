@@ -265,8 +265,9 @@ class Fitter:
         The nonlinear form starts from the plain least-squares solution (the
         last column of `A` is f driven by the nominal output) and takes
         Gauss-Newton steps with the Jacobian [(1 + c f'(z)) A[:, :-1], f(z)],
-        halving a step that does not lower the residual. Returns
-        (None, None) for non-finite columns.
+        halving a step that does not lower the residual. A ``compressive``
+        block whose optimum has c > 0 gets c = 0 (its bound) and the plain
+        least squares of the rest. Returns (None, None) for non-finite columns.
         """
         b, r = cls.solve(A, y)
         if outer is None or b is None:
@@ -301,6 +302,10 @@ class Fitter:
             b, r, f, df, sse = bn, rn, fn, dfn, sn
             if gain < 1e-9:
                 break
+        if getattr(e, "compressive", False) and b[-1] > 0.0:
+            # the bound c ≤ 0 is active: the block is off, the rest linear again
+            b0, r0 = cls.solve(B, y)
+            return (None, None) if b0 is None else (np.r_[b0, 0.0], r0)
         return b, r
 
     @staticmethod
