@@ -167,7 +167,7 @@ def test_a_stroke_limit_only_lowers_the_slope():
         y = z + c_true * s.shape(z, th)[0] + rng.normal(0.0, 0.01, t.size)
         b, r = Fitter.fit_linear(A, y, (s, th))
         x0 = np.r_[Fitter.solve(B, y)[0], -0.1]
-        ref = least_squares(res, x0, args=(y,), bounds=([-np.inf] * 3 + [-np.inf], [np.inf] * 3 + [0.0]),
+        ref = least_squares(res, x0, args=(y,), bounds=([-np.inf] * 4, [np.inf] * 3 + [0.0]),
                             xtol=1e-14, ftol=1e-14, gtol=1e-14)
         np.testing.assert_allclose(b, ref.x, rtol=1e-6, atol=1e-7)
         np.testing.assert_allclose(r, -ref.fun, atol=1e-8)

@@ -71,6 +71,9 @@ class Effect:
         y = z + c·f(z) with z everything else the model puts out: its
         regressor ``f(z)`` depends on the linear parameters, which the
         fitter then solves by Gauss-Newton (:meth:`shape` gives f and f').
+    compressive : bool
+        For an output nonlinearity: its gain c is bounded above by 0 (it may
+        only lower the output's slope).
     """
 
     name = "none"
@@ -80,6 +83,7 @@ class Effect:
     input_side = False
     filtered_columns = True
     output_nonlinear = False
+    compressive = False
 
     def __init__(self):
         self.bounds = []

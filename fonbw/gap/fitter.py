@@ -302,7 +302,7 @@ class Fitter:
             b, r, f, df, sse = bn, rn, fn, dfn, sn
             if gain < 1e-9:
                 break
-        if getattr(e, "compressive", False) and b[-1] > 0.0:
+        if e.compressive and b[-1] > 0.0:
             # the bound c ≤ 0 is active: the block is off, the rest linear again
             b0, r0 = cls.solve(B, y)
             return (None, None) if b0 is None else (np.r_[b0, 0.0], r0)
