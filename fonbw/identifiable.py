@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["REVERSAL_SHARE", "LAM_MIN", "LAM_FLOOR_SINGLE", "LAM_FULL_SPAN", "SIGMA_MAX",
-           "swings", "rate_span", "lambda_floor"]
+           "SIGMA_BOUNDED", "swings", "rate_span", "lambda_floor"]
 
 #: Share of the input's range the input must come back by for a reversal to count
 #: (sensor noise on a measured input makes no reversals).
@@ -41,6 +41,10 @@ LAM_FLOOR_SINGLE = 0.5
 LAM_FULL_SPAN = 10.0
 #: Largest σ searched (module docstring).
 SIGMA_MAX = 1e3
+#: Smallest σ for which every input keeps the Bouc-Wen state bounded (the
+#: per-step root is then unique, :mod:`fonbw.hysteresis.kernels`). Smaller σ
+#: can fit the records and still diverge on another input.
+SIGMA_BOUNDED = 0.5
 
 
 def swings(u, dt) -> tuple[np.ndarray, np.ndarray]:

@@ -215,7 +215,8 @@ class SearchSpace:
         vector x, the coefficients c of F and the gain G of s.
     project : callable, optional
         ``project(X) -> X`` onto the search vectors the maps actually use
-        (σ ≤ :data:`fonbw.identifiable.SIGMA_MAX` by raising ρ); identity if None.
+        (σ ≤ :data:`fonbw.identifiable.SIGMA_MAX` by raising ρ, σ at or above
+        its floor, if any, by lowering it); identity if None.
     """
 
     kind: str
@@ -233,7 +234,7 @@ class SearchSpace:
 # --------------------------------------------------------------------------
 
 def search_space(kind: str, records, *, N: int = 3, bounds: Mapping | None = None,
-                 reparametrize: bool = True) -> SearchSpace:
+                 reparametrize: bool = True, sigma_min: float | None = None) -> SearchSpace:
     """Search variables, default bounds and the maps to natural parameters.
 
     Parameters
@@ -247,6 +248,11 @@ def search_space(kind: str, records, *, N: int = 3, bounds: Mapping | None = Non
         ``{search_variable_name: (lo, hi)}`` overriding defaults.
     reparametrize : bool
         FONBW/NBW/CBW: search σ^(1/n)ρ (default) or σ.
+    sigma_min : float, optional
+        FONBW/NBW/CBW: smallest σ the maps use (ρ is lowered to hold it, as
+        it is raised to hold :data:`~fonbw.identifiable.SIGMA_MAX`); e.g.
+        :data:`~fonbw.identifiable.SIGMA_BOUNDED` for a model that must stay
+        bounded on inputs it was not fitted on. Default: no floor.
 
     Returns
     -------
@@ -260,7 +266,7 @@ def search_space(kind: str, records, *, N: int = 3, bounds: Mapping | None = Non
     U = max(float(np.max(np.abs(u))) for u, _, _ in recs)
     if kind in ("fonbw", "nbw", "cbw"):
         lam_lo = lambda_floor(rate_span(recs)) if kind == "fonbw" else LAM_MIN
-        space = _bw_space(kind, U, int(N) if kind != "cbw" else 1, reparametrize, lam_lo)
+        space = _bw_space(kind, U, int(N) if kind != "cbw" else 1, reparametrize, lam_lo, sigma_min)
     else:
         space = _zhu_space(U)
     if bounds is not None:
@@ -268,12 +274,13 @@ def search_space(kind: str, records, *, N: int = 3, bounds: Mapping | None = Non
     return space
 
 
-def _bw_space(kind, U, Np, reparametrize, lam_lo=LAM_MIN):
-    """FONBW, NBW or CBW search space (module docstring) for max|u| = U [V] and
-    the lower bound `lam_lo` of the fractional orders."""
+def _bw_space(kind, U, Np, reparametrize, lam_lo=LAM_MIN, sigma_min=None):
+    """FONBW, NBW or CBW search space (module docstring) for max|u| = U [V],
+    the lower bound `lam_lo` of the fractional orders and the floor
+    `sigma_min` of σ (None: none)."""
     names = ["rho", "sigma_rho" if reparametrize else "sigma", "n"]
     bnds = [(1e-7 / U, 1e4 / U),
-            (1e-3 / U, 1e4 / U) if reparametrize else (1e-2, SIGMA_MAX),
+            (1e-3 / U, 1e4 / U) if reparametrize else (max(1e-2, sigma_min or 0.0), SIGMA_MAX),
             (1.0, 4.0)]
     logs = [True, True, False]
     if kind == "fonbw":
@@ -287,6 +294,8 @@ def _bw_space(kind, U, Np, reparametrize, lam_lo=LAM_MIN):
         X = np.array(X, dtype=float, ndmin=2)
         if reparametrize:
             X[:, 0] = np.maximum(X[:, 0], X[:, 1] * SIGMA_MAX ** (-1.0 / X[:, 2]))
+            if sigma_min is not None:
+                X[:, 0] = np.minimum(X[:, 0], X[:, 1] * sigma_min ** (-1.0 / X[:, 2]))
         return X
 
     def rho_sigma_n(X):

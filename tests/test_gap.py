@@ -569,3 +569,27 @@ def test_a_nominal_that_diverges_is_refused_naming_the_record():
     with pytest.raises(ValueError, match=r"diverges on the validation record fast\.csv"):
         Diagnosis._check_finite(stub, [rec("a.csv")], [ok], [rec("b.csv"), rec("fast.csv")],
                                 [ok, np.array([0.0, np.nan])])
+
+
+def test_a_nominal_of_its_own_that_diverges_is_refit_bounded():
+    # Harness scenario 18035 (Prandtl-Ishlinskii core, drift): the FONBW that the
+    # diagnosis identifies on the decimated training records has sigma = 2.8e-7
+    # and diverges on the validation steps. The diagnosis refits it with
+    # sigma >= 1/2, where every input keeps the state bounded, and goes on.
+    import blind_gap as bg
+    import gap_cores as gc
+    import gap_truth as tr
+
+    from fonbw.gap.attribute import Diagnosis
+    from fonbw.identifiable import SIGMA_BOUNDED
+
+    seed = 18035
+    sc = tr.draw_scenario(seed, scale=bg.DEFAULTS["scale"], family=tr.scenario_family(seed, tuple(gc.FAMILIES)),
+                          mid_drive=bg.DEFAULTS["mid_drive"])
+    d = Diagnosis(sc["train"], sc["validate"], seed=seed)
+    d.fit_nominal()
+    assert d.sigma_floor == SIGMA_BOUNDED and d.nominal.params["sigma"] >= SIGMA_BOUNDED * (1 - 1e-12)
+    assert all(np.all(np.isfinite(p)) for p in d.p0_va + d.yref_tr)
+    # and it still fits the loop: training RMS 0.22 µm, under 2 % of the output span
+    span = max(float(np.ptp(r.y)) for r in sc["train"])
+    assert d.base["rms"] < 0.02 * span

@@ -409,6 +409,30 @@ def test_sigma_is_capped_by_raising_rho():
     assert search_space("nbw", rec, reparametrize=False).bounds[1] == (1e-2, SIGMA_MAX)
 
 
+def test_a_sigma_floor_lowers_rho_and_keeps_the_state_bounded():
+    from fonbw.identifiable import SIGMA_BOUNDED
+
+    rec = Record.from_arrays(u=eq19(T=4.0), y=np.sin(eq19(T=4.0) / 30.0), dt=DT)
+    free, floored = search_space("fonbw", rec), search_space("fonbw", rec, sigma_min=SIGMA_BOUNDED)
+    # sigma_rho / rho = 0.01 at n = 2 is σ = 1e-4: ρ drops to 0.01 / sqrt(0.5), σ = 1/2
+    x = np.array([[1.0, 0.01, 2.0, 0.9, 0.8], [0.02, 0.0172, 1.5, 0.9, 0.8]])
+    p0, p1 = free.basis_params(x), floored.basis_params(x)
+    assert p0["sigma"][0] == pytest.approx(1e-4) and p0["rho"][0] == 1.0
+    assert p1["sigma"][0] == pytest.approx(0.5) and p1["rho"][0] == pytest.approx(0.01 / np.sqrt(0.5))
+    assert p1["sigma"][1] == p0["sigma"][1] and p1["rho"][1] == 0.02  # σ = 0.8 inside: untouched
+    assert search_space("nbw", rec, reparametrize=False, sigma_min=0.5).bounds[1][0] == 0.5
+    # what the floor is for: on a bipolar sine, σ = 1e-4 runs away after the first
+    # reversal while σ = 1/2 stays within ħ's saturation level 1
+    u = 100.0 * np.sin(2 * np.pi * np.arange(0.0, 2.0, DT))
+    h = {}
+    for key, p in (("free", p0), ("floored", p1)):
+        q = {k: float(p[k][0]) for k in ("rho", "sigma", "n", "lam1", "lam2")}
+        with np.errstate(all="ignore"):
+            h[key] = FONBW(ku=[0.0], kh=1.0, **q).simulate(u, DT)
+    assert not np.all(np.isfinite(h["free"]))
+    assert np.all(np.isfinite(h["floored"])) and np.max(np.abs(h["floored"])) <= 1.0
+
+
 def test_bipolar_single_rate_record_stays_in_identifiable_ranges(bipolar_bench_record):
     # Unbounded, FONBW on one 1 Hz bipolar record ran to σ = 3.5e8 (ρ = 4e-9) or to the
     # λ corner; one rate cannot tell the fractional orders from ρ.

@@ -185,12 +185,10 @@ class Diagnosis:
         self.skip_tr = [2 * s.burn_in for s in self.starts["train"]]
         self.skip_va = [2 * s.burn_in for s in self.starts["validate"]]
         self.val_s = [_cut(r, b) for r, b in zip(self.val, self.skip_va)]
-        self.fitter = Fitter(self.train, self.space, N=N, memory=memory, skip=self.skip_tr)
         # the global searches run on decimated records (Fitter on `coarse`)
         self.q = max(1, int(round(1.0 / (coarse_rate * dt))))
         self.coarse = decimate(self.train, self.q)
-        self.fitter_c = Fitter(self.coarse, self.space, N=N, memory=memory,
-                               skip=[int(math.ceil(b / self.q)) for b in self.skip_tr])
+        self.use_space(self.space)
         U = max(float(np.max(np.abs(r.u))) for r in self.train)
         t_max = max(len(r.u) * dt for r in self.train + self.val)
         ys = np.concatenate([r.y for r in self.train])
@@ -200,6 +198,14 @@ class Diagnosis:
         self.lib = fx.library(dt, U, t_max, effects,
                               y_range=(float(np.quantile(ys, 0.001)), float(np.max(ys))))
         self.timing = {}
+
+    def use_space(self, space):
+        """Fit the FONBW core in `space` from now on (the full-rate and the
+        decimated fitter share it)."""
+        self.space = space
+        self.fitter = Fitter(self.train, space, N=self.N, memory=self.memory, skip=self.skip_tr)
+        self.fitter_c = Fitter(self.coarse, space, N=self.N, memory=self.memory,
+                               skip=[int(math.ceil(b / self.q)) for b in self.skip_tr])
 
     def say(self, *a):
         """One progress line on stderr (only with ``progress``)."""
@@ -216,7 +222,8 @@ class Diagnosis:
         ``yref_c``) and validation records (``yref_va``, creep's driving
         signal; ``p0_va``, the prediction).
         """
-        from ..identify import identify
+        from ..identifiable import SIGMA_BOUNDED
+        from ..identify import identify, search_space
 
         t0 = time.perf_counter()
         train, val, dt = self.train, self.val, self.dt
@@ -235,7 +242,20 @@ class Diagnosis:
         # hands its slow residual to a drift or a creep (on a FONBW core with no
         # effect, 45 evaluations left 1.35 σ² that drift closed; 90 reach 1.04 σ²)
         zero_ref = [np.zeros(len(r.u)) for r in train]
-        self.set_nominal(self.fitter.refit([], x0, [], zero_ref, evals=2 * self.refit_evals, seed=self.seed))
+        self.sigma_floor = None
+        try:
+            self.set_nominal(self.fitter.refit([], x0, [], zero_ref, evals=2 * self.refit_evals, seed=self.seed))
+        except NominalDiverges as e:
+            if self.model_given is not None:
+                raise
+            # a nominal of our own that fits the coarse training samples with
+            # σ < 1/2 and then diverges is refit where every input stays
+            # bounded; every later refit shares the floor (one search space)
+            self.say(f"{e}; refitting with sigma >= {SIGMA_BOUNDED}")
+            self.use_space(search_space(KIND, self.train, N=self.N, sigma_min=SIGMA_BOUNDED))
+            self.sigma_floor = SIGMA_BOUNDED
+            x0 = self.space.project(x0)[0]
+            self.set_nominal(self.fitter.refit([], x0, [], zero_ref, evals=2 * self.refit_evals, seed=self.seed))
         self.timing["nominal_s"] = time.perf_counter() - t0
         self.say(f"nominal fitted in {self.timing['nominal_s']:.1f} s, train rms {self.base['rms']:.4g} µm")
 
@@ -262,7 +282,7 @@ class Diagnosis:
             for r, p in zip(recs, preds):
                 if not np.all(np.isfinite(p)):
                     pr = self.nominal.params
-                    raise ValueError(
+                    raise NominalDiverges(
                         f"diagnose: the nominal FONBW identified on the training records (sigma = "
                         f"{pr['sigma']:.3g}, n = {pr['n']:.3g}) diverges on the {kind} record "
                         f"{getattr(r, 'path', '?')}: a Bouc-Wen model with sigma < 1/2 has no bounded "
@@ -486,6 +506,7 @@ class Diagnosis:
             "reference": self.ref_info,
             "attributed_on": self.att.get("attributed_on", self.att["core"]),
             "at_bounds": at_bounds,
+            "sigma_floor": self.sigma_floor,
         }
         records = {"train": [str(r.path) for r in self.train], "validate": [str(r.path) for r in self.val],
                    "start": {k: [s.to_dict() for s in v] for k, v in self.starts.items()}}
@@ -530,6 +551,10 @@ class Diagnosis:
         self.attribute()
         fm.judge_on_effects(self)
         return self.result()
+
+
+class NominalDiverges(ValueError):
+    """The nominal FONBW's prediction of a record is not finite."""
 
 
 def _preroll(rec, b):
