@@ -174,6 +174,31 @@ def test_a_stroke_limit_only_lowers_the_slope():
         assert b[-1] == (0.0 if c_true > 0 else pytest.approx(c_true, abs=0.01))
 
 
+def test_creep_gains_are_bounded_below_by_zero():
+    # a lead (g < 0) on two of three mode columns: the bounded fit matches
+    # scipy's bounded linear least squares; with every g >= 0 the bound is
+    # inactive and the fit is the plain one
+    from scipy.optimize import lsq_linear
+
+    rng = np.random.default_rng(11)
+    t = np.linspace(0.0, 3.0, 4000)
+    u = 50 + 40 * np.sin(2 * np.pi * 1.3 * t) + 10 * np.sign(np.sin(2 * np.pi * 0.4 * t))
+    base = np.column_stack([u / 100, (u / 100) ** 2, np.ones_like(t)])
+    modes = np.column_stack([fx._first_order(u, np.exp(-(t[1] - t[0]) / tau)) - u for tau in (0.01, 0.1, 1.0)])
+    A = np.column_stack([base, modes])
+    nn = [3, 4, 5]
+    for g in ([-0.1, 0.05, -0.03], [0.1, 0.05, 0.03]):
+        y = base @ [10.0, 2.0, 0.5] + modes @ g + rng.normal(0.0, 0.01, t.size)
+        b, r = Fitter.fit_linear(A, y, nonneg=nn)
+        ref = lsq_linear(A, y, bounds=([-np.inf] * 3 + [0.0] * 3, [np.inf] * 6), tol=1e-14, lsmr_tol="auto")
+        np.testing.assert_allclose(b, ref.x, rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(r, y - A @ ref.x, atol=1e-9)
+        assert np.all(b[nn] >= 0.0) and np.count_nonzero(b[nn] == 0.0) == sum(v < 0 for v in g)
+        if min(g) >= 0:
+            np.testing.assert_array_equal(b, Fitter.solve(A, y)[0])
+    assert fx.Creep(DT, 3.0).lin_nonneg and not fx.Drift().lin_nonneg
+
+
 def test_solve_leaves_an_unexcited_regressor_at_zero():
     rng = np.random.default_rng(4)
     A = np.column_stack([rng.standard_normal(500), np.ones(500), np.full(500, 1e-300)])
@@ -193,6 +218,7 @@ def test_linear_parameters_are_read_in_design_column_order():
     effs = [fx.Saturation(0.0, 20.0), fx.Drift(), fx.Creep(DT, 3.0)]
     sl = fit.lin_slices(effs)
     assert [(x.start, x.stop) for x in sl] == [(9, 10), (7, 9), (4, 7)]
+    assert fit.nonneg(effs) == [4, 5, 6]  # creep's gains
     X = np.array([[0.5, 0.5, 1.0, 1.0, 1.0]])
     TH = [np.array([[15.0, 0.5]]), np.zeros((1, 0)), np.zeros((1, 0))]
     yref = [np.linspace(0.0, 17.0, len(r.u)) for r in sc["train"]]

@@ -377,10 +377,15 @@ def test_form_on_effects_is_a_share_of_what_the_effects_leave():
     assert not out["passed"] and out["gap_closed_after_effects"] == pytest.approx(0.15, rel=1e-9)
 
 
-def test_form_on_effects_needs_half_a_noise_variance_the_floor_and_a_lower_bic():
+def test_form_on_effects_needs_a_noise_variance_the_floor_and_a_lower_bic():
     s2 = 1e-4
-    # 0.4 σ² is 100 % of what is left over the floor, but under σ²/2
+    # 0.4 σ² is 100 % of what is left over the floor, but under σ²
     assert not _judge(1.4 * s2, 1.0 * s2)["passed"]
+    # 0.9 σ² of 1.4 σ² over the floor (64 %, as on a FONBW core with two
+    # effects whose blocks the truth's differ from): still under σ²; 1.1 σ² passes
+    out = _judge(2.4 * s2, 1.5 * s2)
+    assert not out["passed"] and out["gap_closed_after_effects"] == pytest.approx(0.9 / 1.4, rel=1e-9)
+    assert _judge(2.4 * s2, 1.3 * s2)["passed"]
     # FONBW + S at the floor (≤ 1.2 σ²) leaves nothing to judge
     assert not _judge(1.19 * s2, 0.0)["passed"]
     # the reference fits training no better: its extra parameters raise the BIC
@@ -496,3 +501,30 @@ def test_an_effect_is_material_by_the_same_share_on_either_nominal(core):
     assert material(1, 1.01 - 0.09)[0] is False
     d.sigma2, d.att["excess"], d.current["mse"] = 1.0, 0.3, 1.3  # 0.25 of the excess, 0.075 σ²
     assert material(0, 1.3 - 0.075)[0] is False
+
+
+def test_a_later_effect_is_material_when_it_closes_most_of_what_is_left():
+    # σ² = 1; the nominal's excess is 100 σ², the first effect left 8.5 σ² over
+    # the floor (MSE 9.5). A second one that takes 7.7 σ² of it (91 %) closes
+    # only 0.077 of the first gap, under the 0.1 a later step needs by share
+    from types import SimpleNamespace
+
+    from fonbw.gap.attribute import Diagnosis
+
+    d = Diagnosis.__new__(Diagnosis)
+    d.sigma2, d.min_gap_closed, d.seed = 1.0, 0.2, 0
+    d.lib = [SimpleNamespace(names=["a"], lin_names=[], identified=lambda th: True)]
+    d.att = {"core": "fonbw", "excess": 100.0, "fitter": SimpleNamespace(y=np.zeros(1000))}
+    fit = {"rms": 0.02, "th": [np.zeros(1)]}
+
+    def material(step, mse_now, mse):
+        d.current = {"mse": mse_now, "mse_tr": 1e-4}
+        ch = d.check_candidate(0, step, fit, None, mse, None)
+        assert ch["delta_bic"] > 0 and "bootstrap" not in ch
+        return ch["material"]
+
+    assert material(1, 9.5, 9.5 - 7.7)
+    assert not material(0, 9.5, 9.5 - 7.7)      # a first step is judged on the first gap alone
+    assert not material(1, 9.5, 9.5 - 4.0)      # 47 % of what is left
+    assert not material(1, 2.0, 2.0 - 0.9)      # 90 % of what is left, but under σ²
+    assert material(1, 2.2, 2.2 - 1.05)         # 88 % and 1.05 σ²

@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["CONDITIONS", "AMPLITUDE_TOL", "MIN_DROP", "coverage", "flag_text", "remaining", "mse", "bootstrap", "loro"]
+__all__ = ["CONDITIONS", "AMPLITUDE_TOL", "MIN_DROP", "LATE_SHARE", "LATE_DROP", "coverage", "flag_text",
+           "remaining", "mse", "bootstrap", "loro"]
 
 
 #: What each :func:`coverage` condition measures, and its unit.
@@ -38,6 +39,11 @@ AMPLITUDE_TOL = 0.02
 #: counts as material, whatever share of the gap it is: near the noise floor
 #: a smaller drop moves the RMS by less than a twentieth of σ.
 MIN_DROP = 0.1
+#: At a later greedy step an effect is also material when it closes this share
+#: of the gap the accepted effects leave (validation MSE above σ²) ...
+LATE_SHARE = 0.5
+#: ... and lowers the validation MSE by at least this many noise variances σ².
+LATE_DROP = 1.0
 
 
 def coverage(train, validate, dt):
@@ -202,8 +208,9 @@ def loro(fitter, fit_base, fit_eff, eff_base, eff_new, yrefs):
     # what is checked is the effect's agreement across records, not the
     # reference's extrapolation from one record
     nb = fitter.core.n_base if getattr(fitter.core, "name", "") == "reference" else 0
-    full = ([fitter.fit_linear(A[keep], y[keep], o)[0] for A, o in ((A0, o0), (A1, o1))] if nb
-            else [None, None])
+    nn = [fitter.nonneg(eff_base), fitter.nonneg(eff_new)]
+    full = ([fitter.fit_linear(A[keep], y[keep], o, nonneg=n)[0] for A, o, n in ((A0, o0, nn[0]), (A1, o1, nn[1]))]
+            if nb else [None, None])
     if any(b is None for b in full):
         nb = 0  # non-finite columns: both models refit in full, alike
     ratios, tot = [], [0.0, 0.0]
@@ -223,10 +230,11 @@ def loro(fitter, fit_base, fit_eff, eff_base, eff_new, yrefs):
         if held.size == 0:
             continue
         out = []
-        for A, o, bf in ((A0, o0, full[0]), (A1, o1, full[1])):
+        for A, o, bf, n in ((A0, o0, full[0], nn[0]), (A1, o1, full[1], nn[1])):
             if nb:
                 A = np.column_stack([A[:, :nb] @ bf[:nb], A[:, nb:]])
-            b, _ = fitter.fit_linear(A[m], y[m], o)
+                n = None if n is None else [j - nb + 1 for j in n]  # the core is one column now
+            b, _ = fitter.fit_linear(A[m], y[m], o, nonneg=n)
             r = y[held] - fitter.output(A[held], b, o)
             out.append(float(np.mean(r * r)))
         ratios.append(out[1] / out[0] if out[0] > 0 else 1.0)

@@ -74,6 +74,8 @@ class Effect:
     compressive : bool
         For an output nonlinearity: its gain c is bounded above by 0 (it may
         only lower the output's slope).
+    lin_nonneg : bool
+        The gains of ``lin_names`` are bounded below by 0.
     """
 
     name = "none"
@@ -84,6 +86,7 @@ class Effect:
     filtered_columns = True
     output_nonlinear = False
     compressive = False
+    lin_nonneg = False
 
     def __init__(self):
         self.bounds = []
@@ -138,9 +141,14 @@ class Creep(Effect):
     small, so driving them by the nominal rather than the refitted output
     changes the fit by second-order terms only). The static gain is unchanged:
     the g_j are the fractions of a step that arrive late, with time constant τ_j.
+    A fraction is not negative (``lin_nonneg``): creep moves on in the
+    direction of the step. A negative g_j would be a lead, a high-pass boost
+    that takes up a nominal's wrong rate dependence (a 10-ms mode at −0.11
+    corrected a reference on a 20-Hz sine beyond the training rates).
     """
 
     name = "creep"
+    lin_nonneg = True
 
     def __init__(self, dt, t_max):
         super().__init__()

@@ -217,6 +217,13 @@ class Fitter:
                 k += q
         return out
 
+    def nonneg(self, effects):
+        """Indices of the coefficients bounded below by 0 (the gains of the
+        ``lin_nonneg`` blocks among `effects`), or None."""
+        idx = [j for e, sl in zip(effects, self.lin_slices(effects)) if e.lin_nonneg
+               for j in range(sl.start, sl.stop)]
+        return idx or None
+
     @staticmethod
     def outer(effects, TH, p):
         """The output nonlinearity of row `p` as (effect, parameters), or None."""
@@ -258,7 +265,7 @@ class Fitter:
         return b, y - A @ b
 
     @classmethod
-    def fit_linear(cls, A, y, outer=None, iters=8):
+    def fit_linear(cls, A, y, outer=None, iters=8, nonneg=None):
         """Linear coefficients and residual of ``y ≈ A b``, or of the output
         nonlinearity ``y ≈ z + c f(z)``, ``z = A[:, :-1] b[:-1]``, ``c = b[-1]``.
 
@@ -267,8 +274,31 @@ class Fitter:
         Gauss-Newton steps with the Jacobian [(1 + c f'(z)) A[:, :-1], f(z)],
         halving a step that does not lower the residual. A ``compressive``
         block whose optimum has c > 0 gets c = 0 (its bound) and the plain
-        least squares of the rest. Returns (None, None) for non-finite columns.
+        least squares of the rest. The coefficients indexed by `nonneg`
+        (:meth:`nonneg`) are bounded below by 0: while one is negative, the
+        most negative (in units of its column's norm) is held at 0 and the
+        rest refit, a backward elimination that needs no extra solve when
+        the bounds are inactive. Returns (None, None) for non-finite columns.
         """
+        b, r = cls._fit_free(A, y, outer, iters)
+        if nonneg is None or b is None:
+            return b, r
+        free = np.ones(A.shape[1], dtype=bool)
+        for _ in range(len(nonneg)):
+            neg = [j for j in nonneg if free[j] and b[j] < 0.0]
+            if not neg:
+                break
+            free[min(neg, key=lambda j: b[j] * np.linalg.norm(A[:, j]))] = False
+            bf, r = cls._fit_free(A[:, free], y, outer, iters)
+            if bf is None:
+                return None, None
+            b = np.zeros(A.shape[1])
+            b[free] = bf
+        return b, r
+
+    @classmethod
+    def _fit_free(cls, A, y, outer, iters):
+        """:meth:`fit_linear` without the bounds of `nonneg`."""
         b, r = cls.solve(A, y)
         if outer is None or b is None:
             return b, r
@@ -320,7 +350,7 @@ class Fitter:
         """Training RMS [µm] of each candidate row (inf for divergent rows)."""
         out = np.full(np.atleast_2d(X).shape[0], np.inf)
         for p, A in enumerate(self.designs(self.records, X, effects, TH, yrefs)):
-            b, r = self.fit_linear(self.rows(A), self.y, self.outer(effects, TH, p))
+            b, r = self.fit_linear(self.rows(A), self.y, self.outer(effects, TH, p), nonneg=self.nonneg(effects))
             if b is not None:
                 out[p] = math.sqrt(float(np.mean(r * r)))
         return out
@@ -397,7 +427,7 @@ class Fitter:
                 z = res.x
         X, TH = self.split(z, effects)
         A = self.design(self.records, X, effects, TH, yrefs)[0]
-        beta, r = self.fit_linear(self.rows(A), self.y, self.outer(effects, TH, 0))
+        beta, r = self.fit_linear(self.rows(A), self.y, self.outer(effects, TH, 0), nonneg=self.nonneg(effects))
         return {"x": X[0], "th": [t[0] for t in TH], "beta": beta,
                 "rms": math.sqrt(float(np.mean(r * r))) if beta is not None else math.inf,
                 "nfev": nfev + 1}
