@@ -25,7 +25,8 @@ split into training and validation sets:
 
    with MSE0 the nominal model's mean squared error.
 4. **Check** — an effect is accepted only if it closes a material part of
-   the excess gap (``min_gap_closed``), lowers the Bayesian information
+   the excess gap (``min_gap_closed``; at a later step, or most of what the
+   effects accepted before it leave), lowers the Bayesian information
    criterion on the training records, survives a Bayesian block bootstrap over
    segments of the validation records (10th percentile of gap_closed > 0;
    Dirichlet weights, because the evidence of a lag sits in the two or three
@@ -113,7 +114,10 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
     min_gap_closed : float
         Part of the excess gap an effect must close to be material at the
         first greedy step (half of it at later steps), on either nominal: the
-        excess is that of the nominal the effects are attributed on.
+        excess is that of the nominal the effects are attributed on. At a
+        later step an effect is also material when it closes
+        :data:`~fonbw.gap.checks.LATE_SHARE` of what the accepted effects
+        leave and :data:`~fonbw.gap.checks.LATE_DROP` σ² of MSE.
     floor_tol : float
         The gap is at the noise floor when MSE0 ≤ (1 + floor_tol) σ².
     tie_margin : float
