@@ -64,6 +64,7 @@ import time
 
 import numpy as np
 
+from ..identifiable import SIGMA_BOUNDED
 from ..io import Record
 from ..start import start_state
 from . import checks
@@ -226,7 +227,6 @@ class Diagnosis:
         ``yref_c``) and validation records (``yref_va``, creep's driving
         signal; ``p0_va``, the prediction).
         """
-        from ..identifiable import SIGMA_BOUNDED
         from ..identify import identify, search_space
 
         t0 = time.perf_counter()
@@ -246,9 +246,13 @@ class Diagnosis:
         # hands its slow residual to a drift or a creep (on a FONBW core with no
         # effect, 45 evaluations left 1.35 σ² that drift closed; 90 reach 1.04 σ²)
         zero_ref = [np.zeros(len(r.u)) for r in train]
+
+        def refit(x0):
+            self.set_nominal(self.fitter.refit([], x0, [], zero_ref, evals=2 * self.refit_evals, seed=self.seed))
+
         self.sigma_floor = None
         try:
-            self.set_nominal(self.fitter.refit([], x0, [], zero_ref, evals=2 * self.refit_evals, seed=self.seed))
+            refit(x0)
         except NominalDiverges as e:
             if self.model_given is not None:
                 raise
@@ -258,8 +262,7 @@ class Diagnosis:
             self.say(f"{e}; refitting with sigma >= {SIGMA_BOUNDED}")
             self.use_space(search_space(KIND, self.train, N=self.N, sigma_min=SIGMA_BOUNDED))
             self.sigma_floor = SIGMA_BOUNDED
-            x0 = self.space.project(x0)[0]
-            self.set_nominal(self.fitter.refit([], x0, [], zero_ref, evals=2 * self.refit_evals, seed=self.seed))
+            refit(self.space.project(x0)[0])
         self.timing["nominal_s"] = time.perf_counter() - t0
         self.say(f"nominal fitted in {self.timing['nominal_s']:.1f} s, train rms {self.base['rms']:.4g} µm")
 
@@ -289,8 +292,8 @@ class Diagnosis:
                     raise NominalDiverges(
                         f"diagnose: the nominal FONBW identified on the training records (sigma = "
                         f"{pr['sigma']:.3g}, n = {pr['n']:.3g}) diverges on the {kind} record "
-                        f"{getattr(r, 'path', '?')}: a Bouc-Wen model with sigma < 1/2 has no bounded "
-                        "state for every input. Give a nominal model (model=) or training records that "
+                        f"{getattr(r, 'path', '?')}: a Bouc-Wen model with sigma < {SIGMA_BOUNDED:g} has no "
+                        "bounded state for every input. Give a nominal model (model=) or training records that "
                         "cover this record's rates and range")
 
     def cut_va(self, preds):
