@@ -17,7 +17,8 @@ import dataclasses
 
 import numpy as np
 
-__all__ = ["StartState", "start_state", "rise_excess", "burn_ins", "HOLD_SAMPLES", "MAX_BURN_IN_SHARE"]
+__all__ = ["StartState", "start_state", "rise_excess", "burn_ins", "history_candidates", "estimate_history",
+           "HOLD_SAMPLES", "MAX_BURN_IN_SHARE", "HISTORY_LEVELS"]
 
 #: Samples the input must be held at its first value to call the start at rest.
 HOLD_SAMPLES = 10
@@ -34,6 +35,9 @@ REST_TOL = 0.01
 #: start either as close to the bottom (0.2–2.2 %: the bottom cannot tell those from rest)
 #: or far above it (78 %).
 REST_TOL_Y = 0.05
+#: Levels of the last turning point tried for the unseen history of a record that
+#: starts mid-drive (evenly over the record's input range).
+HISTORY_LEVELS = 13
 
 
 @dataclasses.dataclass(frozen=True)
@@ -208,3 +212,89 @@ def burn_ins(records, say=None) -> list:
                 "and its sensor offset is fitted")
         out.append(b)
     return out
+
+
+def _leg(a: float, c: float, rate: float) -> np.ndarray:
+    """A half-cosine sweep from `a` towards `c` [V] at a mean `rate` [V/sample],
+    without its end point (the next leg or the record starts there)."""
+    n = int(np.ceil(abs(c - a) / rate)) if rate > 0 else 0
+    if n == 0:
+        return np.zeros(0)
+    s = 0.5 - 0.5 * np.cos(np.pi * np.arange(n) / n)
+    return a + (c - a) * s
+
+
+def history_candidates(u, burn_in: int) -> list:
+    """Input histories [V] that could have preceded a record starting mid-drive.
+
+    The first is the record's burn-in played backwards (a turn at its first
+    sample). Each of the others leaves rest (0 V), sweeps to one extreme of
+    the record's input range, turns at one of :data:`HISTORY_LEVELS` levels
+    and arrives at the record's first input, at the burn-in's mean rate. For
+    hysteresis with wiping out, the last extreme and the last turning point
+    set the state: a drive cut mid-slope arrives moving, where a backward
+    burn-in would put a turn at the first sample.
+
+    Parameters
+    ----------
+    u : array_like
+        The record's input [V].
+    burn_in : int
+        Samples of the record the history is judged on (≥ 1).
+
+    Returns
+    -------
+    list of (str, ndarray)
+        Each history's description and input, to be run before ``u[0]``.
+    """
+    u = np.asarray(u, float)
+    b = int(min(max(1, burn_in), u.size - 1))
+    lo, hi = float(u.min()), float(u.max())
+    # the total variation over the burn-in spans both extremes, so no leg is
+    # longer than the burn-in
+    rate = float(np.mean(np.abs(np.diff(u[:b + 1])))) or (hi - lo) / b
+    out = [("the burn-in played backwards", u[b:0:-1].copy())]
+    for ua in np.linspace(lo, hi, HISTORY_LEVELS):
+        ub = hi if ua <= u[0] else lo
+        out.append((f"from rest to {ub:.4g} V, turning at {ua:.4g} V",
+                    np.concatenate([_leg(0.0, ub, rate), _leg(ub, ua, rate), _leg(ua, float(u[0]), rate)])))
+    return out
+
+
+def estimate_history(simulate, u, y, burn_in: int):
+    """The history of :func:`history_candidates` that best explains a record's burn-in.
+
+    The burn-in samples are never scored, so they are free to estimate the
+    unseen state with: a model run through each candidate history and then
+    the burn-in is compared with the measured output there.
+
+    Parameters
+    ----------
+    simulate : callable
+        ``simulate(u)`` -> output [µm] of the model from rest.
+    u, y : array_like
+        The record's input [V] and output [µm].
+    burn_in : int
+        Samples at the record's start the history is judged on.
+
+    Returns
+    -------
+    history : ndarray
+        Input [V] to run before the record.
+    text : str
+        What it is (:func:`history_candidates`).
+    mse : float
+        Mean squared error [µm²] over the burn-in (inf when no candidate
+        gives a finite output).
+    """
+    u, y = np.asarray(u, float), np.asarray(y, float)
+    b = int(min(max(1, burn_in), u.size - 1))
+    cands = history_candidates(u, b)
+    best = (cands[0][1], cands[0][0], np.inf)
+    for text, h in cands:
+        with np.errstate(all="ignore"):  # a diverging model scores inf and is passed over
+            p = np.asarray(simulate(np.concatenate([h, u[:b]])), float)[h.size:]
+            e = float(np.mean((y[:b] - p) ** 2))
+        if np.isfinite(e) and e < best[2]:
+            best = (h, text, e)
+    return best

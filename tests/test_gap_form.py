@@ -171,11 +171,14 @@ def test_reduced_basis_keeps_the_fit_and_spans_the_leading_play_directions():
     sv = np.linalg.svd(P, compute_uv=False)
     captured = np.linalg.norm(P @ W) ** 2
     assert captured == pytest.approx(np.sum(sv[:4] ** 2), rel=1e-9)
-    # the refit on the basis reproduces the bounded fit exactly
+    # the refit on the basis keeps the bounded fit: the fit is one of its
+    # points (first column), and its other directions are free of the bounds,
+    # so it can only gain, and only a little (measured: 1.3e-6 relative with
+    # numpy 2.4 / scipy 1.17, the bounded fit itself being KKT-optimal)
     zero = [np.zeros(len(r.u)) for r in recs]
     res = Fitter(recs, core=ReferenceCore(ref, (), active, B)).refit([], np.zeros(0), [], zero, evals=0)
-    assert res["rms"] == pytest.approx(fit.rms_train, rel=1e-7)
-    assert res["beta"][0] == pytest.approx(1.0, abs=1e-6)
+    assert fit.rms_train * (1 - 1e-5) <= res["rms"] <= fit.rms_train * (1 + 1e-9)
+    assert res["beta"][0] == pytest.approx(1.0, abs=1e-3)
     with pytest.raises(ValueError, match="one per active column"):
         ReferenceCore(ref, (), active, B[1:])
 
@@ -250,13 +253,14 @@ def test_pi_core_null_names_the_form_and_no_effect():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="a known miss: with every record cut mid-drive the nominal FONBW "
-                   "keeps part of the start-up transient, which creep then closes")
 def test_fonbw_core_starting_mid_drive_names_nothing():
+    # with the backward burn-in as every record's history, the nominal kept part
+    # of the start-up transient and creep closed it
     _, d = _family_case(21, "fonbw", mid_drive=1.0)
     v = d["verdict"]
     assert v["start"]["mid_drive"]
     assert any(s["burn_in"] > 0 and not s["at_rest"] for s in d["records"]["start"]["train"])
+    assert all("history" in s for k in ("train", "validate") for s in d["records"]["start"][k] if not s["at_rest"])
     assert not v["form"]["material"] and v["effects"] == []
 
 
@@ -463,6 +467,35 @@ def test_form_stands_when_fonbw_with_the_effects_diverges():
     assert out["passed"] and out["fonbw_effects_diverged"] and not np.isfinite(fonbw_s["mse"])
     # judged directly, a non-finite MSE on either side is never material
     assert not _judge(np.inf, 3e-4)["passed"] and not _judge(5e-4, np.inf)["passed"]
+
+
+@pytest.mark.parametrize("cut_u, direction", [(83.0, -1), (40.0, +1)])
+def test_history_of_a_sine_cut_mid_slope_is_estimated_from_its_burn_in(table1, cut_u, direction):
+    # the truth is the model itself, run from rest on a 1-Hz sine and cut mid-slope:
+    # a history estimated on the burn-in must give the scored part the state the
+    # cut record had, where the backward burn-in turns at the first sample
+    from fonbw.start import estimate_history, history_candidates
+
+    dt = 2e-4
+    t = np.arange(int(2.0 / dt)) * dt
+    u = 60.0 - 60.0 * np.cos(2 * np.pi * t)
+    y = table1.simulate(u, dt)
+    i = int(np.flatnonzero((np.abs(u - cut_u) < 0.5) & (np.sign(np.gradient(u)) == direction))[0])
+    rec = _rec(u[i:], y[i:], dt)
+    b = start_state(rec).burn_in
+    assert b > 0
+
+    def scored(h):
+        p = table1.simulate(np.concatenate([h, rec.u]), dt)[h.size:]
+        return float(np.sqrt(np.mean((rec.y[b:] - p[b:]) ** 2)))
+
+    h, text, mse = estimate_history(lambda v: table1.simulate(v, dt), rec.u, rec.y, b)
+    backward = history_candidates(rec.u, b)[0][1]
+    span = float(np.ptp(y))
+    assert text.startswith("from rest") and np.isfinite(mse)
+    # measured: 0.022 / 0.0017 µm against 0.47 / 0.27 µm backward (span 16.8 µm)
+    assert scored(h) < 0.002 * span
+    assert scored(h) < 0.1 * scored(backward)
 
 
 @pytest.mark.parametrize("col", ["u", "y"])

@@ -66,7 +66,7 @@ import numpy as np
 
 from ..identifiable import SIGMA_BOUNDED
 from ..io import Record
-from ..start import start_state
+from ..start import estimate_history, history_candidates, start_state
 from . import checks
 from . import form as fm
 from . import effects as fx
@@ -182,17 +182,20 @@ class Diagnosis:
         self.space = search_space(KIND, self.train, N=N)
         # a record that starts mid-drive is fitted and scored only after its burn-in
         self.starts = {"train": [start_state(r) for r in self.train], "validate": [start_state(r) for r in self.val]}
+        self.raw = {"train": self.train, "validate": self.val}
         # ... and simulated from a pre-roll: the models start from rest, and a
         # wrong initial state of the fractional memory decays as a power law,
-        # which the creep block would otherwise be credited with
-        self.train = [_preroll(r, s.burn_in) for r, s in zip(self.train, self.starts["train"])]
-        self.val = [_preroll(r, s.burn_in) for r, s in zip(self.val, self.starts["validate"])]
-        self.skip_tr = [2 * s.burn_in for s in self.starts["train"]]
-        self.skip_va = [2 * s.burn_in for s in self.starts["validate"]]
-        self.val_s = [_cut(r, b) for r, b in zip(self.val, self.skip_va)]
-        # the global searches run on decimated records (Fitter on `coarse`)
+        # which the creep block would otherwise be credited with. First the
+        # burn-in played backwards; once a nominal exists, the history that
+        # best explains each burn-in (:meth:`estimate_histories`)
+        self.history = {k: [None if s.at_rest else history_candidates(r.u, s.burn_in)[0][1]
+                            for r, s in zip(self.raw[k], self.starts[k])] for k in self.raw}
         self.q = max(1, int(round(1.0 / (coarse_rate * dt))))
-        self.coarse = decimate(self.train, self.q)
+        self.history_info = {}
+        self.apply_histories()
+        # the nominal identifications fit the backward burn-in too (its output
+        # is the measured one played backwards): they keep these records
+        self.coarse_id = self.coarse
         self.use_space(self.space)
         U = max(float(np.max(np.abs(r.u))) for r in self.train)
         t_max = max(len(r.u) * dt for r in self.train + self.val)
@@ -203,6 +206,47 @@ class Diagnosis:
         self.lib = fx.library(dt, U, t_max, effects,
                               y_range=(float(np.quantile(ys, 0.001)), float(np.max(ys))))
         self.timing = {}
+
+    def apply_histories(self):
+        """Pre-roll every record that starts mid-drive with its ``history`` and
+        set what depends on it: ``train``, ``val``, the skipped samples
+        (``skip_tr``, ``skip_va``: history and burn-in), ``val_s`` (the
+        scored part) and ``coarse`` (every q-th training sample, for the
+        global searches)."""
+        def pre(kind):
+            recs, skips = [], []
+            for r, s, h in zip(self.raw[kind], self.starts[kind], self.history[kind]):
+                b = 0 if h is None else s.burn_in
+                recs.append(_preroll(r, h, b))
+                skips.append(0 if h is None else h.size + b)
+            return recs, skips
+
+        self.train, self.skip_tr = pre("train")
+        self.val, self.skip_va = pre("validate")
+        self.val_s = [_cut(r, b) for r, b in zip(self.val, self.skip_va)]
+        # the global searches run on decimated records (Fitter on `coarse`)
+        self.coarse = decimate(self.train, self.q)
+
+    def estimate_histories(self, model):
+        """Choose, with the FONBW `model`, the unseen history of every record
+        that starts mid-drive (:func:`fonbw.start.estimate_history`: the one
+        that best explains its burn-in) and rebuild the records and fitters.
+
+        A backward burn-in puts a turn at the record's first sample; a drive
+        cut mid-slope arrives moving, in a state set by its last extremes.
+        """
+        chosen = {}
+        for kind in self.raw:
+            for i, (r, s) in enumerate(zip(self.raw[kind], self.starts[kind])):
+                if s.at_rest or s.burn_in <= 0:
+                    continue
+                h, text, e = estimate_history(lambda u: model.simulate(u, self.dt), r.u, r.y, s.burn_in)
+                self.history[kind][i] = h
+                chosen[(kind, i)] = {"history": text, "rms_burn_in": math.sqrt(e) if math.isfinite(e) else None}
+        self.history_info = chosen
+        if chosen:
+            self.apply_histories()
+            self.use_space(self.space)
 
     def use_space(self, space):
         """Fit the FONBW core in `space` from now on (the full-rate and the
@@ -232,15 +276,18 @@ class Diagnosis:
         t0 = time.perf_counter()
         train, val, dt = self.train, self.val, self.dt
         if self.model_given is None:
-            res = identify(self.coarse, KIND, seed=self.seed, max_evals=int(self.budget), N=self.N,
+            res = identify(self.coarse_id, KIND, seed=self.seed, max_evals=int(self.budget), N=self.N,
                            memory=self.memory, **nominal_search(self.budget))
             x0 = np.asarray(res.search["x"], dtype=float)
+            start_model = res.model
         else:
             model = self.model_given
             if getattr(model, "kind", None) not in ("fonbw", "nbw"):
                 raise ValueError(f"diagnose: the nominal model must be FONBW or NBW, got "
                                  f"{getattr(model, 'kind', model)!r}")
             x0 = x_from_model(model, self.space)
+            start_model = model
+        self.estimate_histories(start_model)
         # the creep block is driven by the nominal output: a first pass without it.
         # Twice a candidate's local budget: a nominal left short of the floor
         # hands its slow residual to a drift or a creep (on a FONBW core with no
@@ -313,7 +360,7 @@ class Diagnosis:
         self.mse0 = checks.mse(val, self.p0_va)
         self.excess0 = self.mse0 - self.sigma2
         self.at_floor = self.mse0 <= (1.0 + self.floor_tol) * self.sigma2
-        self.coverage = checks.coverage(train, self.val, self.dt)
+        self.coverage = checks.coverage(self.raw["train"], self.raw["validate"], self.dt)
         self.say(f"noise floor σ = {math.sqrt(self.sigma2):.4g} µm, validation rms "
                  f"{math.sqrt(self.mse0):.4g} µm" + (" (at the floor)" if self.at_floor else ""))
 
@@ -523,7 +570,7 @@ class Diagnosis:
             "sigma_floor": self.sigma_floor,
         }
         records = {"train": [str(r.path) for r in self.train], "validate": [str(r.path) for r in self.val],
-                   "start": {k: [s.to_dict() for s in v] for k, v in self.starts.items()}}
+                   "start": self.start_records()}
         self.say(verdict["message"])
         out = DiagnosisResult(nominal, self.loc, self.candidates, verdict, self.timing, records,
                               model=self.nominal)
@@ -545,12 +592,20 @@ class Diagnosis:
                 out.append(name)
         return out
 
+    def start_records(self):
+        """Per-record start states, with the history run before each record that
+        starts mid-drive (``history``) and the nominal's RMS error over its
+        burn-in after it (``rms_burn_in`` [µm])."""
+        return {k: [{**s.to_dict(), **self.history_info.get((k, i), {})} for i, s in enumerate(v)]
+                for k, v in self.starts.items()}
+
     def start_report(self):
         """Per-record start states and whether any record needed a burn-in."""
         mid = [(k, i) for k, v in self.starts.items() for i, s in enumerate(v) if not s.at_rest]
-        return {"mid_drive": bool(mid), "records": {k: [s.to_dict() for s in v] for k, v in self.starts.items()},
+        return {"mid_drive": bool(mid), "records": self.start_records(),
                 "message": ("records starting mid-drive: their start-up transients are burned in and not "
-                            "attributed" if mid else "every record starts at rest")}
+                            "attributed, each run after the history that best explains its burn-in"
+                            if mid else "every record starts at rest")}
 
     def loops(self):
         """Validation inputs [V] with the FONBW and reference residuals [µm] (the report's loop plot)."""
@@ -571,17 +626,21 @@ class NominalDiverges(ValueError):
     """The nominal FONBW's prediction of a record is not finite."""
 
 
-def _preroll(rec, b):
-    """`rec` preceded by its first `b` samples played backwards (u [V], y [µm]).
+def _preroll(rec, hist, b):
+    """`rec` preceded by the input history `hist` [V] (None: `rec` itself).
 
-    A continuous history that ends at the record's first input and sweeps
-    both of its extremes (which the first `b` samples reach), so the state
-    it leaves is a plausible one; the burn-in still keeps it out of scoring.
+    The history's output is never scored (nor fitted, but by the nominal
+    identification): the burn-in played backwards when the history is the
+    backward burn-in, the record's first output otherwise.
     """
-    if b <= 0:
+    if hist is None:
         return rec
-    u = np.concatenate([rec.u[b:0:-1], rec.u])
-    y = np.concatenate([rec.y[b:0:-1], rec.y])
+    if hist.size == b and np.array_equal(hist, rec.u[b:0:-1]):
+        yh = rec.y[b:0:-1]
+    else:
+        yh = np.full(hist.size, rec.y[0])
+    u = np.concatenate([hist, rec.u])
+    y = np.concatenate([yh, rec.y])
     return Record.from_arrays(u=u, y=y, dt=rec.dt, path=rec.path)
 
 

@@ -201,7 +201,7 @@ def second_chance(d):
     if not d.mse_ref < d.mse0 - max(checks.MIN_DROP * d.sigma2, 0.5 * d.min_gap_closed * d.excess0):
         return False
     t0 = time.perf_counter()
-    res = identify(d.coarse, "fonbw", seed=d.seed + 7919, max_evals=int(1.5 * d.budget), N=d.N,
+    res = identify(d.coarse_id, "fonbw", seed=d.seed + 7919, max_evals=int(1.5 * d.budget), N=d.N,
                    memory=d.memory, **nominal_search(1.5 * d.budget))
     x1 = np.asarray(res.search["x"], dtype=float)
     zero = [np.zeros(len(r.u)) for r in d.train]
