@@ -66,7 +66,6 @@ import numpy as np
 
 from ..identifiable import SIGMA_BOUNDED
 from ..io import Record
-from ..start import estimate_history, history_candidates, start_state
 from . import checks
 from . import form as fm
 from . import effects as fx
@@ -74,6 +73,7 @@ from . import selection
 from .fitter import KIND, Fitter, decimate, nominal_search, x_from_model
 from .localize import localize, noise_floor
 from .result import DiagnosisResult, jsonable
+from .starts import RecordStarts, cut
 
 __all__ = ["diagnose", "Diagnosis"]
 
@@ -180,18 +180,10 @@ class Diagnosis:
                                  f"{dt} s; all records need one sampling period")
         self.progress = progress
         self.space = search_space(KIND, self.train, N=N)
-        # a record that starts mid-drive is fitted and scored only after its burn-in
-        self.starts = {"train": [start_state(r) for r in self.train], "validate": [start_state(r) for r in self.val]}
-        self.raw = {"train": self.train, "validate": self.val}
-        # ... and simulated from a pre-roll: the models start from rest, and a
-        # wrong initial state of the fractional memory decays as a power law,
-        # which the creep block would otherwise be credited with. First the
-        # burn-in played backwards; once a nominal exists, the history that
-        # best explains each burn-in (:meth:`estimate_histories`)
-        self.history = {k: [None if s.at_rest else history_candidates(r.u, s.burn_in)[0][1]
-                            for r, s in zip(self.raw[k], self.starts[k])] for k in self.raw}
+        # a record that starts mid-drive is fitted and scored only after its
+        # burn-in, and run after a history (fonbw.gap.starts)
+        self.rs = RecordStarts(self.train, self.val)
         self.q = max(1, int(round(1.0 / (coarse_rate * dt))))
-        self.history_info = {}
         self.apply_histories()
         # the nominal identifications fit the backward burn-in too (its output
         # is the measured one played backwards): they keep these records
@@ -208,43 +200,21 @@ class Diagnosis:
         self.timing = {}
 
     def apply_histories(self):
-        """Pre-roll every record that starts mid-drive with its ``history`` and
-        set what depends on it: ``train``, ``val``, the skipped samples
+        """Take the records as :attr:`rs` runs them (histories first) and set
+        what depends on them: ``train``, ``val``, the skipped samples
         (``skip_tr``, ``skip_va``: history and burn-in), ``val_s`` (the
         scored part) and ``coarse`` (every q-th training sample, for the
         global searches)."""
-        def pre(kind):
-            recs, skips = [], []
-            for r, s, h in zip(self.raw[kind], self.starts[kind], self.history[kind]):
-                b = 0 if h is None else s.burn_in
-                recs.append(_preroll(r, h, b))
-                skips.append(0 if h is None else h.size + b)
-            return recs, skips
-
-        self.train, self.skip_tr = pre("train")
-        self.val, self.skip_va = pre("validate")
-        self.val_s = [_cut(r, b) for r, b in zip(self.val, self.skip_va)]
-        # the global searches run on decimated records (Fitter on `coarse`)
+        self.train, self.skip_tr = self.rs.records("train")
+        self.val, self.skip_va = self.rs.records("validate")
+        self.val_s = [cut(r, b) for r, b in zip(self.val, self.skip_va)]
         self.coarse = decimate(self.train, self.q)
 
     def estimate_histories(self, model):
-        """Choose, with the FONBW `model`, the unseen history of every record
-        that starts mid-drive (:func:`fonbw.start.estimate_history`: the one
-        that best explains its burn-in) and rebuild the records and fitters.
-
-        A backward burn-in puts a turn at the record's first sample; a drive
-        cut mid-slope arrives moving, in a state set by its last extremes.
-        """
-        chosen = {}
-        for kind in self.raw:
-            for i, (r, s) in enumerate(zip(self.raw[kind], self.starts[kind])):
-                if s.at_rest or s.burn_in <= 0:
-                    continue
-                h, text, e = estimate_history(lambda u: model.simulate(u, self.dt), r.u, r.y, s.burn_in)
-                self.history[kind][i] = h
-                chosen[(kind, i)] = {"history": text, "rms_burn_in": math.sqrt(e) if math.isfinite(e) else None}
-        self.history_info = chosen
-        if chosen:
+        """Choose, with the FONBW `model`, the history of every record that
+        starts mid-drive (the one that best explains its burn-in) and rebuild
+        the records and fitters."""
+        if self.rs.estimate(lambda u: model.simulate(u, self.dt)):
             self.apply_histories()
             self.use_space(self.space)
 
@@ -360,7 +330,7 @@ class Diagnosis:
         self.mse0 = checks.mse(val, self.p0_va)
         self.excess0 = self.mse0 - self.sigma2
         self.at_floor = self.mse0 <= (1.0 + self.floor_tol) * self.sigma2
-        self.coverage = checks.coverage(self.raw["train"], self.raw["validate"], self.dt)
+        self.coverage = checks.coverage(self.rs.raw["train"], self.rs.raw["validate"], self.dt)
         self.say(f"noise floor σ = {math.sqrt(self.sigma2):.4g} µm, validation rms "
                  f"{math.sqrt(self.mse0):.4g} µm" + (" (at the floor)" if self.at_floor else ""))
 
@@ -552,7 +522,7 @@ class Diagnosis:
             self.accepted, self.candidates, mse0=self.mse0, mse=self.current["mse"], excess0=self.excess0,
             at_floor=self.at_floor, steps=self.steps, coverage=self.coverage,
             params=self.att["fitter"].effect_params(self.current["fit"], self.current["eff"]),
-            form=self.form, start=self.start_report(),
+            form=self.form, start=self.rs.report(),
             remaining=checks.remaining(self.val_s, self.current["pred"], self.sigma2, self.coverage),
             at_bounds=at_bounds)
         self.timing["total_s"] = time.perf_counter() - self.t_start
@@ -570,7 +540,7 @@ class Diagnosis:
             "sigma_floor": self.sigma_floor,
         }
         records = {"train": [str(r.path) for r in self.train], "validate": [str(r.path) for r in self.val],
-                   "start": self.start_records()}
+                   "start": self.rs.to_dict()}
         self.say(verdict["message"])
         out = DiagnosisResult(nominal, self.loc, self.candidates, verdict, self.timing, records,
                               model=self.nominal)
@@ -592,21 +562,6 @@ class Diagnosis:
                 out.append(name)
         return out
 
-    def start_records(self):
-        """Per-record start states, with the history run before each record that
-        starts mid-drive (``history``) and the nominal's RMS error over its
-        burn-in after it (``rms_burn_in`` [µm])."""
-        return {k: [{**s.to_dict(), **self.history_info.get((k, i), {})} for i, s in enumerate(v)]
-                for k, v in self.starts.items()}
-
-    def start_report(self):
-        """Per-record start states and whether any record needed a burn-in."""
-        mid = [(k, i) for k, v in self.starts.items() for i, s in enumerate(v) if not s.at_rest]
-        return {"mid_drive": bool(mid), "records": self.start_records(),
-                "message": ("records starting mid-drive: their start-up transients are burned in and not "
-                            "attributed, each run after the history that best explains its burn-in"
-                            if mid else "every record starts at rest")}
-
     def loops(self):
         """Validation inputs [V] with the FONBW and reference residuals [µm] (the report's loop plot)."""
         return {"u": [r.u for r in self.val_s], "fonbw": [r.y - p for r, p in zip(self.val_s, self.p0_va)],
@@ -624,31 +579,6 @@ class Diagnosis:
 
 class NominalDiverges(ValueError):
     """The nominal FONBW's prediction of a record is not finite."""
-
-
-def _preroll(rec, hist, b):
-    """`rec` preceded by the input history `hist` [V] (None: `rec` itself).
-
-    The history's output is never scored (nor fitted, but by the nominal
-    identification): the burn-in played backwards when the history is the
-    backward burn-in, the record's first output otherwise.
-    """
-    if hist is None:
-        return rec
-    if hist.size == b and np.array_equal(hist, rec.u[b:0:-1]):
-        yh = rec.y[b:0:-1]
-    else:
-        yh = np.full(hist.size, rec.y[0])
-    u = np.concatenate([hist, rec.u])
-    y = np.concatenate([yh, rec.y])
-    return Record.from_arrays(u=u, y=y, dt=rec.dt, path=rec.path)
-
-
-def _cut(rec, b):
-    """`rec` without its first `b` samples (the part that is scored)."""
-    if b <= 0:
-        return rec
-    return Record(t=rec.t[b:], u=rec.u[b:], y=rec.y[b:], dt=rec.dt, path=rec.path)
 
 
 def _as_records(recs, what):
