@@ -256,8 +256,10 @@ def score(model, rec, burn_in=0, history=None, history_burn_in=0) -> dict:
         With u [V] and y [µm].
     burn_in : int
         Samples left out at the start (a record not at rest, no history): the
-        model runs through :func:`lead_in` first and the mean error after the
-        burn-in, the unknown sensor offset, is removed.
+        model runs first through the history that best explains the burn-in
+        (:func:`fonbw.start.estimate_history`, or :func:`lead_in` when that
+        explains it better) and the mean error after the burn-in, the unknown
+        sensor offset, is removed.
     history : fonbw.io.Record, optional
         The record just before `rec`, run first in one simulation with it;
         then `rec` is scored whole, and the offset (when the history does not
@@ -278,10 +280,11 @@ def score(model, rec, burn_in=0, history=None, history_burn_in=0) -> dict:
         yhat, burn_in = full[history.n:], 0
         if history_burn_in > 0:
             off = -float(np.mean((full[:history.n] - history.y)[history_burn_in:]))
+    elif burn_in > 0:
+        yhat = _after_estimated_history(model, rec, burn_in)
+        off = -float(np.mean((yhat - rec.y)[burn_in:]))
     else:
         yhat = simulate_record(model, rec.u, rec.dt, burn_in)
-        if burn_in > 0:
-            off = -float(np.mean((yhat - rec.y)[burn_in:]))
     if off is not None:
         yhat = yhat + off
     e = (yhat - rec.y)[burn_in:]
@@ -289,3 +292,24 @@ def score(model, rec, burn_in=0, history=None, history_burn_in=0) -> dict:
     rms = float(np.sqrt(np.mean(e ** 2)))
     return {"rms": rms, "rms_percent": 100.0 * rms / rng if rng > 0 else float("inf"),
             "max_abs": float(np.max(np.abs(e))), "range": rng, "offset_um": off, "yhat": yhat}
+
+
+def _after_estimated_history(model, rec, burn_in) -> np.ndarray:
+    """A model's output [µm] over `rec` after the input history [V] that best
+    explains its burn-in up to a constant sensor offset: a drive cut mid-slope
+    arrives moving, in a state its last extremes set, which a lead-in from
+    rest straight to the first input does not give."""
+    from .start import estimate_history
+
+    def sim(v):
+        return model.simulate(v, rec.dt)
+
+    b = int(burn_in)
+    pre, _, var = estimate_history(sim, rec.u, rec.y, b, offset=True)
+    lead = lead_in(rec.u, rec.dt)
+    with np.errstate(all="ignore"):
+        y_lead = sim(np.concatenate([lead, rec.u[:b]]))[lead.size:]
+        var_lead = float(np.var(rec.y[:b] - y_lead))
+    if np.isfinite(var_lead) and var_lead <= var:
+        pre = lead
+    return sim(np.concatenate([pre, rec.u]))[pre.size:]

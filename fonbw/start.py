@@ -261,7 +261,7 @@ def history_candidates(u, burn_in: int) -> list:
     return out
 
 
-def estimate_history(simulate, u, y, burn_in: int):
+def estimate_history(simulate, u, y, burn_in: int, offset: bool = False):
     """The history of :func:`history_candidates` that best explains a record's burn-in.
 
     The burn-in samples are never scored, so they are free to estimate the
@@ -276,6 +276,9 @@ def estimate_history(simulate, u, y, burn_in: int):
         The record's input [V] and output [µm].
     burn_in : int
         Samples at the record's start the history is judged on.
+    offset : bool
+        The output carries an unknown constant sensor offset: judge each
+        history on the error's variance over the burn-in, not its mean square.
 
     Returns
     -------
@@ -284,8 +287,8 @@ def estimate_history(simulate, u, y, burn_in: int):
     text : str
         What it is (:func:`history_candidates`).
     mse : float
-        Mean squared error [µm²] over the burn-in (inf when no candidate
-        gives a finite output).
+        Mean squared error [µm²] over the burn-in, its variance with
+        `offset` (inf when no candidate gives a finite output).
     """
     u, y = np.asarray(u, float), np.asarray(y, float)
     b = int(min(max(1, burn_in), u.size - 1))
@@ -294,7 +297,8 @@ def estimate_history(simulate, u, y, burn_in: int):
     for text, h in cands:
         with np.errstate(all="ignore"):  # a diverging model scores inf and is passed over
             p = np.asarray(simulate(np.concatenate([h, u[:b]])), float)[h.size:]
-            e = float(np.mean((y[:b] - p) ** 2))
+            r = y[:b] - p
+            e = float(np.var(r) if offset else np.mean(r ** 2))
         if np.isfinite(e) and e < best[2]:
             best = (h, text, e)
     return best
