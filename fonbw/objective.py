@@ -6,7 +6,9 @@ are refused (:data:`MIN_OWN_SHARE`): their gains would cancel.
 
 Records that do not start at rest are simulated after a smooth lead-in from
 0 V to their first input (:func:`lead_in`) and count only after their burn-in,
-each with its own constant sensor offset among the linear parameters.
+each with its own constant sensor offset among the linear parameters. Once a
+model exists, :func:`score` (validation, and identify's reports and plots)
+runs such a record after the history that best explains its burn-in instead.
 """
 from __future__ import annotations
 
@@ -272,16 +274,18 @@ def score(model, rec, burn_in=0, history=None, history_burn_in=0) -> dict:
     dict
         rms [µm], rms_percent [% of the scored range of y], max_abs [µm],
         range [µm], offset_um (fitted offset [µm] added to the model, None if
-        none was fitted), yhat (model output over `rec` [µm], offset included).
+        none was fitted), start_history (what the model ran before a record
+        with a burn-in, None otherwise), yhat (model output over `rec` [µm],
+        offset included).
     """
-    off = None
+    off, how = None, None
     if history is not None:
         full = simulate_record(model, np.concatenate([history.u, rec.u]), rec.dt, history_burn_in)
         yhat, burn_in = full[history.n:], 0
         if history_burn_in > 0:
             off = -float(np.mean((full[:history.n] - history.y)[history_burn_in:]))
     elif burn_in > 0:
-        yhat = _after_estimated_history(model, rec, burn_in)
+        yhat, how = _after_estimated_history(model, rec, burn_in)
         off = -float(np.mean((yhat - rec.y)[burn_in:]))
     else:
         yhat = simulate_record(model, rec.u, rec.dt, burn_in)
@@ -291,25 +295,26 @@ def score(model, rec, burn_in=0, history=None, history_burn_in=0) -> dict:
     rng = float(np.ptp(rec.y[burn_in:]))
     rms = float(np.sqrt(np.mean(e ** 2)))
     return {"rms": rms, "rms_percent": 100.0 * rms / rng if rng > 0 else float("inf"),
-            "max_abs": float(np.max(np.abs(e))), "range": rng, "offset_um": off, "yhat": yhat}
+            "max_abs": float(np.max(np.abs(e))), "range": rng, "offset_um": off, "start_history": how,
+            "yhat": yhat}
 
 
-def _after_estimated_history(model, rec, burn_in) -> np.ndarray:
+def _after_estimated_history(model, rec, burn_in) -> tuple:
     """A model's output [µm] over `rec` after the input history [V] that best
-    explains its burn-in up to a constant sensor offset: a drive cut mid-slope
-    arrives moving, in a state its last extremes set, which a lead-in from
-    rest straight to the first input does not give."""
+    explains its burn-in up to a constant sensor offset, and what that history
+    is: a drive cut mid-slope arrives moving, in a state its last extremes
+    set, which a lead-in from rest straight to the first input does not give."""
     from .start import estimate_history
 
     def sim(v):
         return model.simulate(v, rec.dt)
 
     b = int(burn_in)
-    pre, _, var = estimate_history(sim, rec.u, rec.y, b, offset=True)
+    pre, how, var = estimate_history(sim, rec.u, rec.y, b, offset=True)
     lead = lead_in(rec.u, rec.dt)
     with np.errstate(all="ignore"):
         y_lead = sim(np.concatenate([lead, rec.u[:b]]))[lead.size:]
         var_lead = float(np.var(rec.y[:b] - y_lead))
     if np.isfinite(var_lead) and var_lead <= var:
-        pre = lead
-    return sim(np.concatenate([pre, rec.u]))[pre.size:]
+        pre, how = lead, f"a lead-in from rest to {rec.u[0]:.4g} V"
+    return sim(np.concatenate([pre, rec.u]))[pre.size:], how

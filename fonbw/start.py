@@ -38,6 +38,8 @@ REST_TOL_Y = 0.05
 #: Levels of the last turning point tried for the unseen history of a record that
 #: starts mid-drive (evenly over the record's input range).
 HISTORY_LEVELS = 13
+#: Longest leg of such a history [burn-ins].
+LEG_MAX = 4
 
 
 @dataclasses.dataclass(frozen=True)
@@ -214,10 +216,11 @@ def burn_ins(records, say=None) -> list:
     return out
 
 
-def _leg(a: float, c: float, rate: float) -> np.ndarray:
-    """A half-cosine sweep from `a` towards `c` [V] at a mean `rate` [V/sample],
-    without its end point (the next leg or the record starts there)."""
-    n = int(np.ceil(abs(c - a) / rate)) if rate > 0 else 0
+def _leg(a: float, c: float, rate: float, n_max: int) -> np.ndarray:
+    """A half-cosine sweep from `a` towards `c` [V] at a mean `rate` [V/sample]
+    (in at most `n_max` samples), without its end point (the next leg or the
+    record starts there)."""
+    n = min(int(np.ceil(abs(c - a) / rate)), int(n_max)) if rate > 0 else 0
     if n == 0:
         return np.zeros(0)
     s = 0.5 - 0.5 * np.cos(np.pi * np.arange(n) / n)
@@ -250,14 +253,20 @@ def history_candidates(u, burn_in: int) -> list:
     u = np.asarray(u, float)
     b = int(min(max(1, burn_in), u.size - 1))
     lo, hi = float(u.min()), float(u.max())
-    # the total variation over the burn-in spans both extremes, so no leg is
-    # longer than the burn-in
-    rate = float(np.mean(np.abs(np.diff(u[:b + 1])))) or (hi - lo) / b
+    # the burn-in's mean rate (a burn-in that reaches both extremes sweeps the
+    # range about once); one sweep per burn-in when it moves by less than a
+    # quarter of that (a capped burn-in over a pause, input noise only, would
+    # ask for legs of millions of samples); and no leg longer than LEG_MAX
+    # burn-ins (the first starts at 0 V, which may lie outside the record's range)
+    rate = float(np.mean(np.abs(np.diff(u[:b + 1]))))
+    if rate * LEG_MAX * b < hi - lo:
+        rate = (hi - lo) / b
+    legs = lambda a, c: _leg(a, c, rate, LEG_MAX * b)  # noqa: E731
     out = [("the burn-in played backwards", u[b:0:-1].copy())]
     for ua in np.linspace(lo, hi, HISTORY_LEVELS):
         ub = hi if ua <= u[0] else lo
         out.append((f"from rest to {ub:.4g} V, turning at {ua:.4g} V",
-                    np.concatenate([_leg(0.0, ub, rate), _leg(ub, ua, rate), _leg(ua, float(u[0]), rate)])))
+                    np.concatenate([legs(0.0, ub), legs(ub, ua), legs(ua, float(u[0]))])))
     return out
 
 

@@ -520,6 +520,73 @@ def test_validate_scores_a_record_cut_mid_slope_after_its_estimated_history(tabl
     assert met["offset_um"] == pytest.approx(0.8, abs=0.05)
 
 
+def test_validate_keeps_the_lead_in_when_it_explains_the_burn_in_better(table1):
+    # the truth came straight up from rest to the record's first input (the
+    # lead-in itself): no estimated history may beat it
+    from fonbw.objective import lead_in, score
+
+    dt = 2e-4
+    t = np.arange(int(1.5 / dt)) * dt
+    u = 60.0 + 50.0 * np.sin(2 * np.pi * 2.0 * t)
+    pre = lead_in(u, dt)
+    y = table1.simulate(np.concatenate([pre, u]), dt)[pre.size:]
+    rec = _rec(u, y, dt)
+    b = start_state(rec).burn_in
+    assert b > 0
+    met = score(table1, rec, b)
+    assert met["start_history"].startswith("a lead-in from rest")
+    assert met["rms"] < 1e-9
+
+
+def test_record_starts_skip_the_history_and_the_burn_in():
+    # the diagnosis' records: one at rest comes back as it is, one cut mid-drive
+    # is preceded by its history and skipped up to the end of its burn-in
+    from fonbw.gap.starts import RecordStarts
+    from fonbw.start import history_candidates
+
+    dt = 2e-4
+    t = np.arange(5000) * dt
+    rest = _rec(60.0 - 60.0 * np.cos(2 * np.pi * t), dt=dt)
+    cut = _rec(60.0 + 60.0 * np.sin(2 * np.pi * t + 0.3), dt=dt)
+    rs = RecordStarts([rest], [cut])
+    b = rs.starts["validate"][0].burn_in
+    (r0,), (s0,) = rs.records("train")
+    assert r0 is rest and s0 == 0
+    (r1,), (s1,) = rs.records("validate")
+    assert s1 == 2 * b and r1.n == cut.n + b  # the backward burn-in before any estimate
+    np.testing.assert_array_equal(r1.u[s1 - b:], cut.u)
+    # a "model" whose output is its input plus a constant that grows with the
+    # length of the run: the shortest history explains the burn-in best
+    assert rs.estimate(lambda v: v + 1e-6 * v.size)
+    h = rs.history["validate"][0]
+    lengths = [c.size for _, c in history_candidates(cut.u, b)]
+    assert h.size == min(lengths) < b
+    (r1,), (s1,) = rs.records("validate")
+    assert s1 == h.size + b and r1.n == cut.n + h.size
+    np.testing.assert_array_equal(r1.u[h.size:], cut.u)
+    info = rs.to_dict()["validate"][0]
+    assert info["history"].startswith("from rest")
+    assert info["rms_burn_in"] == pytest.approx(1e-6 * (h.size + b), rel=1e-9)
+
+
+def test_history_legs_are_bounded_by_the_burn_in():
+    # a record cut in a pause (input noise of 1 µV) that ramps to its extremes
+    # only late: its capped burn-in moves by nothing, and the legs, timed by
+    # the burn-in's mean rate alone, would run to about 1e8 samples
+    from fonbw.start import history_candidates
+
+    rng = np.random.default_rng(0)
+    u = np.concatenate([50.0 + 1e-6 * rng.standard_normal(3000), np.linspace(50.0, 120.0, 1000),
+                        np.linspace(120.0, 0.0, 1500)])
+    b = start_state(_rec(u)).burn_in
+    assert b == int(0.4 * u.size)
+    cands = history_candidates(u, b)
+    assert len(cands) == 14
+    assert max(h.size for _, h in cands) <= 3 * b + 1
+    for _, h in cands[1:]:
+        assert h[0] == 0.0 and abs(h[-1] - u[0]) < 0.2 * np.ptp(u)
+
+
 @pytest.mark.parametrize("col", ["u", "y"])
 def test_start_refuses_a_non_finite_sample_naming_record_column_and_index(col):
     u = np.linspace(0.0, 100.0, 500)

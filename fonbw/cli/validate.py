@@ -8,7 +8,9 @@ records with every record's for several).
 
 Every model starts at rest. A record that does not (see fonbw.start: e.g.
 the second half of a longer run, or a bipolar drive whose state at 0 V is
-unknown) is run from rest through a smooth lead-in to its first input and
+unknown) is run from rest through the input history that best explains its
+burn-in (rest, an extreme, a turning level, its first input; or a smooth
+lead-in straight to its first input: fonbw.start.estimate_history) and
 scored only after its burn-in, the samples until the model's state no longer
 depends on the unknown state at the start; its sensor offset (unknown
 without a rest segment) is taken as the mean error after the burn-in. Both
@@ -95,8 +97,9 @@ def _say_start(r) -> str:
         return ""
     return (f"  {r['start']}: scored after a burn-in of {r['burn_in_s']:.4g} s "
             f"({r['burn_in_samples']} samples), the sensor offset taken as the mean error, "
-            f"{r['offset_um']:.4g} µm; the model is run from rest through a smooth lead-in to the first input "
-            "(--history PREV.csv runs it through the record before this one instead)")
+            f"{r['offset_um']:.4g} µm; the model is run first through {r['start_history']}, the history "
+            "that best explains the burn-in (--history PREV.csv runs it through the record before this one "
+            "instead)")
 
 
 def run(ns) -> None:

@@ -244,7 +244,6 @@ class Diagnosis:
         from ..identify import identify, search_space
 
         t0 = time.perf_counter()
-        train, val, dt = self.train, self.val, self.dt
         if self.model_given is None:
             res = identify(self.coarse_id, KIND, seed=self.seed, max_evals=int(self.budget), N=self.N,
                            memory=self.memory, **nominal_search(self.budget))
@@ -262,7 +261,7 @@ class Diagnosis:
         # Twice a candidate's local budget: a nominal left short of the floor
         # hands its slow residual to a drift or a creep (on a FONBW core with no
         # effect, 45 evaluations left 1.35 σ² that drift closed; 90 reach 1.04 σ²)
-        zero_ref = [np.zeros(len(r.u)) for r in train]
+        zero_ref = [np.zeros(len(r.u)) for r in self.train]  # the records as the histories left them
 
         def refit(x0):
             self.set_nominal(self.fitter.refit([], x0, [], zero_ref, evals=2 * self.refit_evals, seed=self.seed))
@@ -277,7 +276,7 @@ class Diagnosis:
             # σ < 1/2 and then diverges is refit where every input stays
             # bounded; every later refit shares the floor (one search space)
             self.say(f"{e}; refitting with sigma >= {SIGMA_BOUNDED}")
-            self.use_space(search_space(KIND, self.train, N=self.N, sigma_min=SIGMA_BOUNDED))
+            self.use_space(search_space(KIND, self.rs.raw["train"], N=self.N, sigma_min=SIGMA_BOUNDED))
             self.sigma_floor = SIGMA_BOUNDED
             refit(self.space.project(x0)[0])
         self.timing["nominal_s"] = time.perf_counter() - t0

@@ -119,7 +119,7 @@ def fit_reference(d, evals=40):
     best = None
     for init in ("rest", "descended", "ascended"):
         ref = ReferenceHysteresis(rate="both", initial=init, degree=REFERENCE_DEGREE,
-                                  level=REFERENCE_LEVEL).with_range(d.train)
+                                  level=REFERENCE_LEVEL).with_range(d.rs.raw["train"])
         theta, rss = _search_theta(ref, d.coarse, skip_c, d.seed, evals)
         if best is None or rss < best[2]:
             best = (ref, theta, rss)

@@ -47,7 +47,7 @@ class RecordStarts:
     def __init__(self, train, validate):
         self.raw = {"train": list(train), "validate": list(validate)}
         self.starts = {k: [start_state(r) for r in self.raw[k]] for k in KINDS}
-        self.history = {k: [None if s.at_rest else history_candidates(r.u, s.burn_in)[0][1]
+        self.history = {k: [None if s.at_rest or s.burn_in <= 0 else history_candidates(r.u, s.burn_in)[0][1]
                             for r, s in zip(self.raw[k], self.starts[k])] for k in KINDS}
         self.info = {}
 
