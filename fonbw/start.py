@@ -17,7 +17,8 @@ import dataclasses
 
 import numpy as np
 
-__all__ = ["StartState", "start_state", "rise_excess", "burn_ins", "history_candidates", "estimate_history",
+__all__ = ["StartState", "start_state", "rise_excess", "burn_ins", "backward_burn_in", "history_candidates",
+           "estimate_history",
            "HOLD_SAMPLES", "MAX_BURN_IN_SHARE", "HISTORY_LEVELS"]
 
 #: Samples the input must be held at its first value to call the start at rest.
@@ -216,6 +217,13 @@ def burn_ins(records, say=None) -> list:
     return out
 
 
+def backward_burn_in(x, burn_in: int) -> np.ndarray:
+    """Samples 1 … `burn_in` of a record's column `x` played backwards: a
+    history that ends next to the first sample and sweeps what the burn-in
+    sweeps (the first of :func:`history_candidates`)."""
+    return np.array(x[burn_in:0:-1], dtype=float)
+
+
 def _leg(a: float, c: float, rate: float, n_max: int) -> np.ndarray:
     """A half-cosine sweep from `a` towards `c` [V] at a mean `rate` [V/sample]
     (in at most `n_max` samples), without its end point (the next leg or the
@@ -262,7 +270,7 @@ def history_candidates(u, burn_in: int) -> list:
     if rate * LEG_MAX * b < hi - lo:
         rate = (hi - lo) / b
     legs = lambda a, c: _leg(a, c, rate, LEG_MAX * b)  # noqa: E731
-    out = [("the burn-in played backwards", u[b:0:-1].copy())]
+    out = [("the burn-in played backwards", backward_burn_in(u, b))]
     for ua in np.linspace(lo, hi, HISTORY_LEVELS):
         ub = hi if ua <= u[0] else lo
         out.append((f"from rest to {ub:.4g} V, turning at {ua:.4g} V",

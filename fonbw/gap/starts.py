@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from ..io import Record
-from ..start import estimate_history, history_candidates, start_state
+from ..start import backward_burn_in, estimate_history, start_state
 
 __all__ = ["RecordStarts"]
 
@@ -47,7 +47,7 @@ class RecordStarts:
     def __init__(self, train, validate):
         self.raw = {"train": list(train), "validate": list(validate)}
         self.starts = {k: [start_state(r) for r in self.raw[k]] for k in KINDS}
-        self.history = {k: [None if s.at_rest or s.burn_in <= 0 else history_candidates(r.u, s.burn_in)[0][1]
+        self.history = {k: [None if s.at_rest or s.burn_in <= 0 else backward_burn_in(r.u, s.burn_in)
                             for r, s in zip(self.raw[k], self.starts[k])] for k in KINDS}
         self.info = {}
 
@@ -99,8 +99,8 @@ def _preroll(rec, hist, b):
     """
     if hist is None:
         return rec
-    if hist.size == b and np.array_equal(hist, rec.u[b:0:-1]):
-        yh = rec.y[b:0:-1]
+    if hist.size == b and np.array_equal(hist, backward_burn_in(rec.u, b)):
+        yh = backward_burn_in(rec.y, b)
     else:
         yh = np.full(hist.size, rec.y[0])
     return Record.from_arrays(u=np.concatenate([hist, rec.u]), y=np.concatenate([yh, rec.y]),
