@@ -248,7 +248,7 @@ class Projected:
 
 
 
-def score(model, rec, burn_in=0, history=None, history_burn_in=0) -> dict:
+def score(model, rec, burn_in=0, history=None, history_burn_in=0, rest=0.0) -> dict:
     """Errors of `model` on one record, scored after its burn-in.
 
     Parameters
@@ -268,6 +268,9 @@ def score(model, rec, burn_in=0, history=None, history_burn_in=0) -> dict:
         start at rest) is the mean error over the history after
         `history_burn_in` samples.
     history_burn_in : int
+    rest : float
+        The stage's input at rest [V] (:func:`fonbw.start.rest_level`), where
+        the estimated histories start.
 
     Returns
     -------
@@ -285,7 +288,7 @@ def score(model, rec, burn_in=0, history=None, history_burn_in=0) -> dict:
         if history_burn_in > 0:
             off = -float(np.mean((full[:history.n] - history.y)[history_burn_in:]))
     elif burn_in > 0:
-        yhat, how = _after_estimated_history(model, rec, burn_in)
+        yhat, how = _after_estimated_history(model, rec, burn_in, rest)
         off = -float(np.mean((yhat - rec.y)[burn_in:]))
     else:
         yhat = simulate_record(model, rec.u, rec.dt, burn_in)
@@ -299,7 +302,7 @@ def score(model, rec, burn_in=0, history=None, history_burn_in=0) -> dict:
             "yhat": yhat}
 
 
-def _after_estimated_history(model, rec, burn_in) -> tuple:
+def _after_estimated_history(model, rec, burn_in, rest=0.0) -> tuple:
     """A model's output [µm] over `rec` after the input history [V] that best
     explains its burn-in up to a constant sensor offset, and what that history
     is: a drive cut mid-slope arrives moving, in a state its last extremes
@@ -310,7 +313,7 @@ def _after_estimated_history(model, rec, burn_in) -> tuple:
         return model.simulate(v, rec.dt)
 
     b = int(burn_in)
-    pre, how, var = estimate_history(sim, rec.u, rec.y, b, offset=True)
+    pre, how, var = estimate_history(sim, rec.u, rec.y, b, offset=True, rest=rest)
     lead = lead_in(rec.u, rec.dt)
     with np.errstate(all="ignore"):
         y_lead = sim(np.concatenate([lead, rec.u[:b]]))[lead.size:]

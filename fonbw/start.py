@@ -17,7 +17,7 @@ import dataclasses
 
 import numpy as np
 
-__all__ = ["StartState", "start_state", "rise_excess", "burn_ins", "backward_burn_in", "history_candidates",
+__all__ = ["StartState", "start_state", "rest_level", "rise_excess", "burn_ins", "backward_burn_in", "history_candidates",
            "estimate_history",
            "HOLD_SAMPLES", "MAX_BURN_IN_SHARE", "HISTORY_LEVELS"]
 
@@ -52,7 +52,8 @@ class StartState:
     at_rest : bool
         True when the input is held at its first value for at least
         ``HOLD_SAMPLES`` samples and the output does not move meanwhile,
-        that value being the bottom of the record's input range (within
+        that value being the bottom of the record's input range and, when
+        the stage's rest input is known, that rest input (within
         ``REST_TOL``; a hold half-way up is a pause mid-drive); or when input
         and output both start at the bottom of their ranges (a drive that
         leaves rest at once, e.g. a sine from 0 V), the output within
@@ -126,6 +127,24 @@ def rise_excess(u, y) -> float:
     return float(y[0] - y[:_first_rise(u)].min())
 
 
+def rest_level(inputs) -> float:
+    """The input of the stage at rest [V], read off all of its records' inputs.
+
+    0 V (the unpowered stage) when the drives reach or straddle it, unipolar
+    or bipolar; otherwise the lowest input of the set (a stage the records
+    only show biased).
+
+    Parameters
+    ----------
+    inputs : iterable of array_like
+        The inputs [V] of every record of the stage (training, validation,
+        history).
+    """
+    lo = min(float(np.min(u)) for u in inputs)
+    hi = max(float(np.max(u)) for u in inputs)
+    return float(min(max(0.0, lo), hi))
+
+
 def _sweep_end(u: np.ndarray, tol: float) -> int:
     """First sample index after the input has reached both record extremes."""
     lo = np.flatnonzero(u <= u.min() + tol)
@@ -133,7 +152,8 @@ def _sweep_end(u: np.ndarray, tol: float) -> int:
     return int(max(lo[0], hi[0])) + 1
 
 
-def start_state(record, hold: int = HOLD_SAMPLES, max_share: float = MAX_BURN_IN_SHARE) -> StartState:
+def start_state(record, hold: int = HOLD_SAMPLES, max_share: float = MAX_BURN_IN_SHARE,
+                rest: float | None = None) -> StartState:
     """Decide whether a record starts at rest and how many samples to burn in.
 
     Parameters
@@ -144,6 +164,12 @@ def start_state(record, hold: int = HOLD_SAMPLES, max_share: float = MAX_BURN_IN
         Samples the input must stay at its first value for an at-rest start.
     max_share : float
         Cap of the burn-in as a share of the record length (0..1).
+    rest : float, optional
+        The stage's input at rest [V] (:func:`rest_level` of every record of
+        the stage). Without it the record's own bottom stands for rest, and a
+        record cut at a hold above the stage's rest (a step record paused at
+        40 V in a 0–120 V set), whose creep and memory carry the unseen drive
+        before it, would pass for one that starts at rest.
 
     Returns
     -------
@@ -174,6 +200,8 @@ def start_state(record, hold: int = HOLD_SAMPLES, max_share: float = MAX_BURN_IN
     # rest is the bottom of the drive (an unpowered stage): a hold half-way up
     # is a pause mid-drive whose hysteresis state the record does not show
     bottom_u = u[0] <= u.min() + REST_TOL * span_u
+    if rest is not None:
+        bottom_u = bottom_u and abs(u[0] - float(rest)) <= REST_TOL * span_u
     # the output's bottom over the input's first rise, not over the record: a
     # fast or rate-dependent drive can take the output below its start later
     # on (undershoot at 20 Hz), which says nothing about how the record began
@@ -207,8 +235,9 @@ def burn_ins(records, say=None) -> list:
         One burn-in [samples] per record.
     """
     out = []
+    rest = rest_level([r.u for r in records]) if len(records) else None
     for r in records:
-        st = start_state(r)
+        st = start_state(r, rest=rest)
         b = 0 if st.at_rest else int(st.burn_in)
         if b and say is not None:
             say(f"{r.path}: {st.reason}; the first {b} samples ({b * r.dt:.4g} s) are left out of the fit "
@@ -235,11 +264,12 @@ def _leg(a: float, c: float, rate: float, n_max: int) -> np.ndarray:
     return a + (c - a) * s
 
 
-def history_candidates(u, burn_in: int) -> list:
+def history_candidates(u, burn_in: int, rest: float = 0.0) -> list:
     """Input histories [V] that could have preceded a record starting mid-drive.
 
     The first is the record's burn-in played backwards (a turn at its first
-    sample). Each of the others leaves rest (0 V), sweeps to one extreme of
+    sample), the second a plain sweep from rest to the first input.
+    Each of the others leaves rest, sweeps to one extreme of
     the record's input range, turns at one of :data:`HISTORY_LEVELS` levels
     and arrives at the record's first input, at the burn-in's mean rate. For
     hysteresis with wiping out, the last extreme and the last turning point
@@ -252,6 +282,9 @@ def history_candidates(u, burn_in: int) -> list:
         The record's input [V].
     burn_in : int
         Samples of the record the history is judged on (≥ 1).
+    rest : float
+        The stage's input at rest [V] (:func:`rest_level`), where every
+        history but the backward burn-in starts.
 
     Returns
     -------
@@ -265,20 +298,23 @@ def history_candidates(u, burn_in: int) -> list:
     # range about once); one sweep per burn-in when it moves by less than a
     # quarter of that (a capped burn-in over a pause, input noise only, would
     # ask for legs of millions of samples); and no leg longer than LEG_MAX
-    # burn-ins (the first starts at 0 V, which may lie outside the record's range)
+    # burn-ins (the first starts at rest, which may lie outside the record's range)
     rate = float(np.mean(np.abs(np.diff(u[:b + 1]))))
     if rate * LEG_MAX * b < hi - lo:
         rate = (hi - lo) / b
     legs = lambda a, c: _leg(a, c, rate, LEG_MAX * b)  # noqa: E731
-    out = [("the burn-in played backwards", backward_burn_in(u, b))]
+    out = [("the burn-in played backwards", backward_burn_in(u, b)),
+           # a stage brought up to a bias and left there (a step record that
+           # starts at its hold): no turn since rest
+           (f"from rest straight to {u[0]:.4g} V", legs(rest, float(u[0])))]
     for ua in np.linspace(lo, hi, HISTORY_LEVELS):
         ub = hi if ua <= u[0] else lo
         out.append((f"from rest to {ub:.4g} V, turning at {ua:.4g} V",
-                    np.concatenate([legs(0.0, ub), legs(ub, ua), legs(ua, float(u[0]))])))
+                    np.concatenate([legs(rest, ub), legs(ub, ua), legs(ua, float(u[0]))])))
     return out
 
 
-def estimate_history(simulate, u, y, burn_in: int, offset: bool = False):
+def estimate_history(simulate, u, y, burn_in: int, offset: bool = False, rest: float = 0.0):
     """The history of :func:`history_candidates` that best explains a record's burn-in.
 
     The burn-in samples are never scored, so they are free to estimate the
@@ -296,6 +332,8 @@ def estimate_history(simulate, u, y, burn_in: int, offset: bool = False):
     offset : bool
         The output carries an unknown constant sensor offset: judge each
         history on the error's variance over the burn-in, not its mean square.
+    rest : float
+        The stage's input at rest [V] (:func:`rest_level`).
 
     Returns
     -------
@@ -309,7 +347,7 @@ def estimate_history(simulate, u, y, burn_in: int, offset: bool = False):
     """
     u, y = np.asarray(u, float), np.asarray(y, float)
     b = int(min(max(1, burn_in), u.size - 1))
-    cands = history_candidates(u, b)
+    cands = history_candidates(u, b, rest)
     best = (cands[0][1], cands[0][0], np.inf)
     for text, h in cands:
         with np.errstate(all="ignore"):  # a diverging model scores inf and is passed over

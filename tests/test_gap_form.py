@@ -73,6 +73,37 @@ def test_start_hold_half_way_up_is_mid_drive_and_drive_from_bottom_is_rest():
     assert s.at_rest and s.burn_in == 0
 
 
+def test_a_hold_at_the_records_bottom_above_the_stages_rest_is_mid_drive():
+    from fonbw.start import burn_ins, history_candidates, rest_level
+
+    # a step record cut at its 40 V hold (40 → 100 → 60 V) in a set whose
+    # other drives leave 0 V: its bottom is not the stage's rest
+    steps = np.r_[np.full(2500, 40.0), np.full(5000, 100.0), np.full(5000, 60.0)]
+    sine = 60.0 - 60.0 * np.cos(np.linspace(0.0, 4 * np.pi, 4000))
+    assert start_state(_rec(steps)).at_rest                  # alone: nothing tells
+    assert rest_level([steps, sine]) == 0.0
+    s = start_state(_rec(steps), rest=0.0)
+    assert not s.at_rest and s.burn_in == 2501               # both extremes by the step to 100 V
+    assert burn_ins([_rec(steps), _rec(sine)]) == [2501, 0]
+    # the same record in a set that never goes below 40 V: biased, at rest
+    assert rest_level([steps, 40.0 + sine]) == 40.0
+    assert burn_ins([_rec(steps), _rec(40.0 + sine)]) == [0, 0]
+    # the histories leave the stage's rest: a plain rise to the first input,
+    # or rest → an extreme → a turn → the first input
+    up = np.r_[np.full(100, 60.0), np.linspace(60.0, 100.0, 400), np.linspace(100.0, 50.0, 500)]
+    for rest in (0.0, 20.0):
+        cands = history_candidates(up, 600, rest=rest)
+        assert all(h[0] == rest for _, h in cands[1:])
+        assert cands[1][1][-1] < 60.0 and np.all(np.diff(cands[1][1]) > 0)
+    # bipolar: rest is 0 V inside the range; a record held at 0 V that then
+    # only rises starts at rest, one held at its bottom −150 V does not
+    up = np.r_[np.zeros(100), 75.0 - 75.0 * np.cos(np.linspace(0.0, 4 * np.pi, 2000))]
+    down = -150.0 + up
+    assert rest_level([up, 2.0 * up - 150.0]) == 0.0
+    assert start_state(_rec(up), rest=0.0).at_rest
+    assert not start_state(_rec(down), rest=0.0).at_rest
+
+
 def test_start_from_rest_with_a_dip_or_a_later_undershoot_is_at_rest():
     # a 20-Hz sine from 0 V (no hold) on a 0..14 µm output
     t = np.arange(2500) * 2e-4
@@ -581,7 +612,7 @@ def test_history_legs_are_bounded_by_the_burn_in():
     b = start_state(_rec(u)).burn_in
     assert b == int(0.4 * u.size)
     cands = history_candidates(u, b)
-    assert len(cands) == 14
+    assert len(cands) == 15
     assert max(h.size for _, h in cands) <= 3 * b + 1
     for _, h in cands[1:]:
         assert h[0] == 0.0 and abs(h[-1] - u[0]) < 0.2 * np.ptp(u)

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import json
 
-from ..start import start_state
+from ..start import rest_level, start_state
 from .records import CLIError, add_record_arguments, load_model, out_path, read_records
 
 __all__ = ["add_arguments", "run"]
@@ -68,24 +68,38 @@ def _rows(ns, m):
     if ns.history:
         (hist,), (y0,) = read_records([ns.history], ns, offsets=True)
         recs = [_chain(hist, y0, recs[0])]
+    rest = _rest(m, recs, hist)
     hb = 0
     if hist is not None:
-        st = start_state(hist)
+        st = start_state(hist, rest=rest)
         hb = 0 if st.at_rest else int(st.burn_in)
     rows, burns = [], []
     for r in recs:
-        st = start_state(r)
+        st = start_state(r, rest=rest)
         b = 0 if (st.at_rest or hist is not None) else int(st.burn_in)
         if b >= r.n - 8:
             raise CLIError(f"{r.path}: {st.reason}, and the burn-in ({b} samples) leaves too few to score; "
                            "pass the record before it with --history")
-        met = score(m, r, b, hist, hb)
+        met = score(m, r, b, hist, hb, rest=rest)
         met.pop("yhat")
         rows.append({"file": r.path, "samples": int(r.n - b), **met, "at_rest": bool(st.at_rest),
                      "start": st.reason, "burn_in_samples": b, "burn_in_s": round(b * r.dt, 9),
                      "history": ns.history, "history_burn_in_s": round(hb * r.dt, 9) if hist is not None else None})
         burns.append(b)
     return rows, recs, burns, (hist, hb)
+
+
+def _rest(m, recs, hist):
+    """The stage's input at rest [V]: from these records and the model's
+    training range when the model recorded it (a validation record held at
+    40 V is then judged against the 0 V its training drives left from)."""
+    from ..invertibility import model_u_range
+
+    inputs = [r.u for r in recs] + ([hist.u] if hist is not None else [])
+    trained = model_u_range(m)
+    if trained is not None:
+        inputs.append(list(trained))
+    return rest_level(inputs)
 
 
 def _say_start(r) -> str:

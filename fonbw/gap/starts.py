@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from ..io import Record
-from ..start import backward_burn_in, estimate_history, start_state
+from ..start import backward_burn_in, estimate_history, rest_level, start_state
 
 __all__ = ["RecordStarts"]
 
@@ -46,7 +46,8 @@ class RecordStarts:
 
     def __init__(self, train, validate):
         self.raw = {"train": list(train), "validate": list(validate)}
-        self.starts = {k: [start_state(r) for r in self.raw[k]] for k in KINDS}
+        self.rest = rest = rest_level([r.u for k in KINDS for r in self.raw[k]])
+        self.starts = {k: [start_state(r, rest=rest) for r in self.raw[k]] for k in KINDS}
         self.history = {k: [None if s.at_rest or s.burn_in <= 0 else backward_burn_in(r.u, s.burn_in)
                             for r, s in zip(self.raw[k], self.starts[k])] for k in KINDS}
         self.info = {}
@@ -70,7 +71,7 @@ class RecordStarts:
             for i, (r, s) in enumerate(zip(self.raw[kind], self.starts[kind])):
                 if s.at_rest or s.burn_in <= 0:
                     continue
-                h, text, e = estimate_history(simulate, r.u, r.y, s.burn_in)
+                h, text, e = estimate_history(simulate, r.u, r.y, s.burn_in, rest=self.rest)
                 self.history[kind][i] = h
                 self.info[(kind, i)] = {"history": text, "rms_burn_in": math.sqrt(e) if math.isfinite(e) else None}
         return bool(self.info)
