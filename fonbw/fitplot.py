@@ -45,11 +45,14 @@ def fit_plot(model, records, path, *, title="", burn_in=None, history=None, hist
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from .objective import stage_rest
+
     burn_in = burn_in or [0] * len(records)
+    rest = stage_rest(model, [r.u for r in records] + ([history.u] if history is not None else []))
     fig, axes = plt.subplots(len(records), 3, figsize=(14, 3.6 * len(records)), squeeze=False,
                              gridspec_kw={"width_ratios": [2.2, 2.2, 1.4]})
     for row, rec, b in zip(axes, records, burn_in):
-        _panels(row, model, rec, b, history, history_burn_in)
+        _panels(row, model, rec, b, history, history_burn_in, rest)
     fig.suptitle(title)
     fig.tight_layout()
     with atomic_open(path, "wb") as fh:
@@ -58,11 +61,11 @@ def fit_plot(model, records, path, *, title="", burn_in=None, history=None, hist
     return str(path)
 
 
-def _panels(row, model, rec, b, history, hb):
+def _panels(row, model, rec, b, history, hb, rest):
     """Time trace, error and loop of one record on three axes."""
     from .objective import score
 
-    met = score(model, rec, b, history, hb)
+    met = score(model, rec, b, history, hb, rest=rest)
     yhat, rms = met["yhat"], met["rms"]
     t = rec.t - rec.t[0]
     e = yhat - rec.y

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["rms_cost", "Projected", "lead_in", "as_records", "simulate_record", "score"]
+__all__ = ["stage_rest", "rms_cost", "Projected", "lead_in", "as_records", "simulate_record", "score"]
 
 #: Smallest share (in RMS) of a candidate's basis signal that is not a linear
 #: combination of the fixed regressors (powers of u, offsets). Below it the
@@ -300,6 +300,21 @@ def score(model, rec, burn_in=0, history=None, history_burn_in=0, rest=0.0) -> d
     return {"rms": rms, "rms_percent": 100.0 * rms / rng if rng > 0 else float("inf"),
             "max_abs": float(np.max(np.abs(e))), "range": rng, "offset_um": off, "start_history": how,
             "yhat": yhat}
+
+
+def stage_rest(model, inputs) -> float:
+    """The stage's input at rest [V] (:func:`fonbw.start.rest_level`) from the
+    inputs [V] of the records at hand and, when the model recorded it, its
+    training range: a validation record held at 40 V is then judged against
+    the 0 V its training drives left from."""
+    from .invertibility import model_u_range
+    from .start import rest_level
+
+    inputs = list(inputs)
+    trained = model_u_range(model)
+    if trained is not None:
+        inputs.append(list(trained))
+    return rest_level(inputs)
 
 
 def _after_estimated_history(model, rec, burn_in, rest=0.0) -> tuple:

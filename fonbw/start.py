@@ -131,8 +131,9 @@ def rest_level(inputs) -> float:
     """The input of the stage at rest [V], read off all of its records' inputs.
 
     0 V (the unpowered stage) when the drives reach or straddle it, unipolar
-    or bipolar; otherwise the lowest input of the set (a stage the records
-    only show biased).
+    or bipolar; otherwise the input of the set nearest 0 V (a stage the
+    records only show biased: the lowest input of a positive set, the
+    highest of a negative one). 0 V when there is no input.
 
     Parameters
     ----------
@@ -140,8 +141,11 @@ def rest_level(inputs) -> float:
         The inputs [V] of every record of the stage (training, validation,
         history).
     """
-    lo = min(float(np.min(u)) for u in inputs)
-    hi = max(float(np.max(u)) for u in inputs)
+    arrays = [a for a in (np.asarray(u, float) for u in inputs) if a.size]
+    if not arrays:
+        return 0.0
+    lo = min(float(np.min(a)) for a in arrays)
+    hi = max(float(np.max(a)) for a in arrays)
     return float(min(max(0.0, lo), hi))
 
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import json
 
-from ..start import rest_level, start_state
+from ..start import start_state
 from .records import CLIError, add_record_arguments, load_model, out_path, read_records
 
 __all__ = ["add_arguments", "run"]
@@ -59,7 +59,7 @@ def _chain(prev, y0, rec):
 
 def _rows(ns, m):
     """One result row per record (and the records, for the plot)."""
-    from ..objective import score
+    from ..objective import score, stage_rest
 
     if ns.history and len(ns.data) != 1:
         raise CLIError(f"--history takes one DATA.csv, got {len(ns.data)}")
@@ -68,7 +68,7 @@ def _rows(ns, m):
     if ns.history:
         (hist,), (y0,) = read_records([ns.history], ns, offsets=True)
         recs = [_chain(hist, y0, recs[0])]
-    rest = _rest(m, recs, hist)
+    rest = stage_rest(m, [r.u for r in recs] + ([hist.u] if hist is not None else []))
     hb = 0
     if hist is not None:
         st = start_state(hist, rest=rest)
@@ -87,19 +87,6 @@ def _rows(ns, m):
                      "history": ns.history, "history_burn_in_s": round(hb * r.dt, 9) if hist is not None else None})
         burns.append(b)
     return rows, recs, burns, (hist, hb)
-
-
-def _rest(m, recs, hist):
-    """The stage's input at rest [V]: from these records and the model's
-    training range when the model recorded it (a validation record held at
-    40 V is then judged against the 0 V its training drives left from)."""
-    from ..invertibility import model_u_range
-
-    inputs = [r.u for r in recs] + ([hist.u] if hist is not None else [])
-    trained = model_u_range(m)
-    if trained is not None:
-        inputs.append(list(trained))
-    return rest_level(inputs)
 
 
 def _say_start(r) -> str:

@@ -234,7 +234,8 @@ def nominal_from_candidates(d, results):
     """
     if d.att["core"] != "fonbw" or d.replaced is not None:
         return False
-    ok = [r for r in results if np.all(np.isfinite(r["fit"]["x"]))]
+    # a refit that diverges on a validation record cannot be the nominal
+    ok = [r for r in results if np.all(np.isfinite(r["fit"]["x"])) and np.isfinite(r.get("mse", 0.0))]
     if not ok:
         return False
     zero = [np.zeros(len(r.u)) for r in d.train]
@@ -246,11 +247,16 @@ def nominal_from_candidates(d, results):
     fit = d.fitter.refit([], ok[j]["fit"]["x"], [], zero, evals=2 * d.refit_evals, seed=d.seed)
     if not fit["rms"] ** 2 < need:
         return False
-    d.replaced = {"by": d.lib[ok[j]["i"]].name, "rms_train": float(d.base["rms"]),
+    old = d.base
+    try:
+        d.set_nominal(fit)
+    except ValueError:  # its prediction of a record is not finite: keep the nominal
+        d.set_nominal(old)
+        return False
+    d.replaced = {"by": d.lib[ok[j]["i"]].name, "rms_train": float(old["rms"]),
                   "rms_validate": math.sqrt(d.mse0)}
     d.say(f"the FONBW of +{d.lib[ok[j]['i']].name}'s refit fits the training records better alone: "
-          f"train rms {d.base['rms']:.4g} → {fit['rms']:.4g} µm; taken as the nominal, attribution restarted")
-    d.set_nominal(fit)
+          f"train rms {old['rms']:.4g} → {fit['rms']:.4g} µm; taken as the nominal, attribution restarted")
     d.localize_residual()
     d.form = check_form(d)
     d.att = d.reference_att() if d.form["material"] else d.fonbw_att()
