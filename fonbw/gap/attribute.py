@@ -8,10 +8,7 @@ split into training and validation sets:
    records with :func:`fonbw.identify.identify` (or a given model), then
    polished by the same joint refit the candidates get, so that a candidate
    is never credited with what a longer optimization of the nominal model
-   alone would have given; and when one of the first candidates' refits
-   holds a FONBW that alone fits the training records materially better,
-   that FONBW becomes the nominal and the attribution starts again
-   (:func:`fonbw.gap.form.nominal_from_candidates`).
+   alone would have given.
 2. **Localize** — :func:`fonbw.gap.localize.localize` on the validation
    residual; the noise floor σ² comes from the residual spectrum.
 3. **Attribute** — each block of :mod:`fonbw.gap.effects` is added to the
@@ -201,8 +198,6 @@ class Diagnosis:
         self.lib = fx.library(dt, U, t_max, effects,
                               y_range=(float(np.quantile(ys, 0.001)), float(np.max(ys))))
         self.timing = {}
-        # what the nominal was before a candidate's refit replaced it (once)
-        self.replaced = None
 
     def apply_histories(self):
         """Take the records as :attr:`rs` runs them (histories first) and set
@@ -464,11 +459,6 @@ class Diagnosis:
             if self.current["mse"] <= (1.0 + self.floor_tol) * self.sigma2 or not pool:
                 break
             results = self.try_candidates(step, pool, t0)
-            if step == 0 and fm.nominal_from_candidates(self, results):
-                spent = time.perf_counter() - t0
-                self.attribute()
-                self.timing["attribute_s"] += spent
-                return
             if step == 0:
                 self._first_step_candidates(results)
             best = selection.pick_best(results, self.tie_margin)
@@ -547,7 +537,6 @@ class Diagnosis:
             "attributed_on": self.att.get("attributed_on", self.att["core"]),
             "at_bounds": at_bounds,
             "sigma_floor": self.sigma_floor,
-            "replaced": self.replaced,
         }
         records = {"train": [str(r.path) for r in self.train], "validate": [str(r.path) for r in self.val],
                    "start": self.rs.to_dict()}

@@ -82,8 +82,8 @@ REFERENCE_LEVEL = 6
 REFERENCE_DIRECTIONS = 16
 
 __all__ = ["REFERENCE_DEGREE", "REFERENCE_LEVEL", "REFERENCE_DIRECTIONS", "reduced_basis", "fit_reference",
-           "second_chance", "nominal_from_candidates", "check_form", "form_on_effects", "confirm_form",
-           "form_after_effects", "judge_on_effects", "where"]
+           "second_chance", "check_form", "form_on_effects", "confirm_form", "form_after_effects",
+           "judge_on_effects", "where"]
 
 
 def _stack(ref, recs, theta, skip):
@@ -213,54 +213,6 @@ def second_chance(d):
     d.say(f"second FONBW identification: train rms {fit['rms']:.4g} µm "
           f"({'taken' if changed else 'kept the first'}, {d.timing['second_chance_s']:.1f} s)")
     return changed
-
-
-def nominal_from_candidates(d, results):
-    """Take the better FONBW that the first candidates' refits of diagnosis
-    `d` found.
-
-    Every joint refit moves the hysteresis too. When the FONBW alone, at one
-    of those refits' hysteresis parameters and polished, fits the training
-    records better than the nominal by a material amount, the nominal's own
-    search had stopped early and the candidates were closing that (on a FONBW
-    core with creep and a training record cut mid-drive, every block closed
-    0.95–0.999 of the gap and drift won the tie). That FONBW becomes the
-    nominal, the gap is measured anew and the attribution starts again on it:
-    an identification that stops early is not an effect. Judged on the
-    training records only; on the FONBW nominal, once. Returns True when the
-    nominal changed, and sets ``d.replaced`` (the JSON's ``nominal.replaced``:
-    the effect whose refit held it, the old nominal's training and validation
-    RMS [µm]).
-    """
-    if d.att["core"] != "fonbw" or d.replaced is not None:
-        return False
-    # a refit that diverges on a validation record cannot be the nominal
-    ok = [r for r in results if np.all(np.isfinite(r["fit"]["x"])) and np.isfinite(r.get("mse", 0.0))]
-    if not ok:
-        return False
-    zero = [np.zeros(len(r.u)) for r in d.train]
-    need = d.base["rms"] ** 2 - checks.MIN_DROP * d.sigma2
-    c = d.fitter.cost(np.array([r["fit"]["x"] for r in ok], dtype=float), [], [], zero)
-    j = int(np.argmin(c))
-    if not c[j] ** 2 < need:
-        return False
-    fit = d.fitter.refit([], ok[j]["fit"]["x"], [], zero, evals=2 * d.refit_evals, seed=d.seed)
-    if not fit["rms"] ** 2 < need:
-        return False
-    old = d.base
-    try:
-        d.set_nominal(fit)
-    except ValueError:  # its prediction of a record is not finite: keep the nominal
-        d.set_nominal(old)
-        return False
-    d.replaced = {"by": d.lib[ok[j]["i"]].name, "rms_train": float(old["rms"]),
-                  "rms_validate": math.sqrt(d.mse0)}
-    d.say(f"the FONBW of +{d.lib[ok[j]['i']].name}'s refit fits the training records better alone: "
-          f"train rms {old['rms']:.4g} → {fit['rms']:.4g} µm; taken as the nominal, attribution restarted")
-    d.localize_residual()
-    d.form = check_form(d)
-    d.att = d.reference_att() if d.form["material"] else d.fonbw_att()
-    return True
 
 
 def check_form(d):
