@@ -1,8 +1,8 @@
 """How `fonbw.start.start_state` reads the records of the blind harness' scenarios.
 
 For every record whose input starts at the bottom of its range (the case the
-output and the stage's rest input decide) prints whether the scenario cut it mid-drive, whether the
-check says so, and how far the output starts above its bottom over the
+output and the stage's rest input decide) prints whether the scenario cut it
+mid-drive, whether the check says so, and how far the output starts above its bottom over the
 input's first rise (as a share of the output range)::
 
     python benchmarks/start_scan.py 12000 12040

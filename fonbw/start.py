@@ -17,8 +17,8 @@ import dataclasses
 
 import numpy as np
 
-__all__ = ["StartState", "start_state", "rest_level", "rise_excess", "burn_ins", "backward_burn_in", "history_candidates",
-           "estimate_history",
+__all__ = ["StartState", "start_state", "rest_level", "rise_excess", "burn_ins", "backward_burn_in",
+           "history_candidates", "estimate_history",
            "HOLD_SAMPLES", "MAX_BURN_IN_SHARE", "HISTORY_LEVELS"]
 
 #: Samples the input must be held at its first value to call the start at rest.

@@ -619,4 +619,3 @@ def test_a_nominal_of_its_own_that_diverges_is_refit_bounded():
     # and it still fits the loop: training RMS 0.22 µm, under 2 % of the output span
     span = max(float(np.ptp(r.y)) for r in sc["train"])
     assert d.base["rms"] < 0.02 * span
-

@@ -122,13 +122,13 @@ def _holdout(recs, kw) -> None:
     from ..start import rest_level
 
     kw = {**kw, "progress": False}
-    at_rest = rest_level([r.u for r in recs])
+    rest_u = rest_level([r.u for r in recs])  # the stage's, read off every record
     for i, r in enumerate(recs):
         rest = [x for j, x in enumerate(recs) if j != i]
         sub = {**kw, "burn_in": [b for j, b in enumerate(kw["burn_in"]) if j != i]}
         fit = identify(rest, **sub)
         if fit.message == "interrupted":
             raise KeyboardInterrupt("the model was written; the held-out check was cut short")
-        met = score(fit.model, r, kw["burn_in"][i], rest=at_rest)
+        met = score(fit.model, r, kw["burn_in"][i], rest=rest_u)
         print(f"held out {r.path}: RMS {met['rms']:.4g} µm = {met['rms_percent']:.3g} % of range "
               f"(model fitted on the other {len(rest)} record(s))")
