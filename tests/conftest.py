@@ -1,8 +1,8 @@
 """Shared test set-up.
 
 * ``benchmarks/`` on the import path (the truth simulators of the blind harnesses);
-* the ``slow`` marker: end-to-end runs of a minute or more (CI runs them too;
-  ``pytest -m "not slow"`` is the quick loop);
+* the ``slow`` marker: end-to-end runs of a minute or more (CI runs them too,
+  first; ``pytest -m "not slow"`` is the quick loop);
 * session fixtures: the paper's Table 1 model and eq.-19 input, one build of the
   closed loop's FMUs shared by every test (and every xdist worker), and one
   wheel install of the library in a fresh environment.
@@ -28,6 +28,13 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 def pytest_configure(config):
     config.addinivalue_line("markers", "slow: end-to-end runs of a minute or more (run by CI too)")
+
+
+def pytest_collection_modifyitems(config, items):
+    # slow tests first: a running test cannot be stolen by an idle worker
+    # (``--dist worksteal`` in pyproject.toml), so a minute-long test started
+    # last keeps one worker busy while the other idles
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
 @pytest.fixture(scope="session")
