@@ -7,8 +7,6 @@ rest) are shaded. Drawn with matplotlib's Agg backend, so no display is needed.
 """
 from __future__ import annotations
 
-import numpy as np
-
 from .io import atomic_open
 
 __all__ = ["fit_plot"]
