@@ -13,6 +13,7 @@ import gap_truth as tr
 from fonbw import plant
 from fonbw.gap import diagnose
 from fonbw.gap import effects as fx
+from fonbw.gap.filters import first_order
 from fonbw.gap.checks import coverage, remaining
 from fonbw.gap.fitter import Fitter, decimate
 from fonbw.gap.localize import branch, localize, noise_floor, reversal_age
@@ -184,7 +185,7 @@ def test_creep_gains_are_bounded_below_by_zero():
     t = np.linspace(0.0, 3.0, 4000)
     u = 50 + 40 * np.sin(2 * np.pi * 1.3 * t) + 10 * np.sign(np.sin(2 * np.pi * 0.4 * t))
     base = np.column_stack([u / 100, (u / 100) ** 2, np.ones_like(t)])
-    modes = np.column_stack([fx._first_order(u, np.exp(-(t[1] - t[0]) / tau)) - u for tau in (0.01, 0.1, 1.0)])
+    modes = np.column_stack([first_order(u, np.exp(-(t[1] - t[0]) / tau)) - u for tau in (0.01, 0.1, 1.0)])
     A = np.column_stack([base, modes])
     nn = [3, 4, 5]
     for g in ([-0.1, 0.05, -0.03], [0.1, 0.05, 0.03]):

@@ -36,6 +36,7 @@ from scipy.signal import lfilter
 
 from .. import plant as _plant
 from .blas import single_thread
+from .filters import first_order
 
 __all__ = ["Effect", "Creep", "Dynamics", "Amplifier", "Delay", "Drift", "Saturation", "Clip",
            "library", "EFFECTS"]
@@ -119,19 +120,6 @@ class Effect:
         return d
 
 
-def _first_order(x, a):
-    """y_k = a y_{k-1} + (1 − a) x_k along the last axis, starting at rest at x_0.
-
-    The backward (implicit) form keeps a step's first sample from being
-    delayed, which a delay candidate would otherwise have to share.
-    """
-    x = np.asarray(x, dtype=float)
-    zi_shape = x.shape[:-1] + (1,)
-    zi = (a * x[..., :1]).reshape(zi_shape)
-    y, _ = lfilter([1.0 - a], [1.0, -a], x, axis=-1, zi=zi)
-    return y
-
-
 class Creep(Effect):
     """Creep: first-order modes driven by the model output.
 
@@ -159,7 +147,7 @@ class Creep(Effect):
 
     def columns(self, ctx, th):
         h = ctx["y_ref"]
-        return np.column_stack([_first_order(h, math.exp(-ctx["dt"] / tau)) - h for tau in self.taus])
+        return np.column_stack([first_order(h, math.exp(-ctx["dt"] / tau)) - h for tau in self.taus])
 
 
 class Drift(Effect):
