@@ -96,9 +96,9 @@ REFERENCE_DIRECTIONS = 16
 REFERENCE_RATE = "both"
 REFERENCE_RELAX = ()
 
-__all__ = ["REFERENCE_RATE", "REFERENCE_RELAX", "REFERENCE_DEGREE", "REFERENCE_LEVEL", "REFERENCE_DIRECTIONS", "reduced_basis", "fit_reference",
-           "second_chance", "check_form", "form_on_effects", "confirm_form", "form_after_effects",
-           "judge_on_effects", "where"]
+__all__ = ["REFERENCE_RATE", "REFERENCE_RELAX", "REFERENCE_DEGREE", "REFERENCE_LEVEL", "REFERENCE_DIRECTIONS",
+           "reduced_basis", "fit_reference", "second_chance", "check_form", "form_on_effects", "confirm_form",
+           "form_after_effects", "judge_on_effects", "where"]
 
 
 def _stack(ref, recs, theta, skip):

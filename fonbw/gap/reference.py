@@ -292,7 +292,7 @@ class ReferenceHysteresis:
         Number of play operators m.
     degree : int
         Degree of the polynomial in x = (u - u_c) / u_h (powers 1 … degree).
-    rate : {None, "threshold", "fractional"}
+    rate : {None, "threshold", "fractional", "both", "viscous"}
         Rate dependence and its nonlinear parameters θ.
     initial : {"rest", "descended", "ascended", "burn-in"}
         Play states at t = 0 of every record.
@@ -307,9 +307,14 @@ class ReferenceHysteresis:
         weights ≥ 0): 0 is the classical PI model (density constant along
         the lines); 1 or 2 let the loops widen towards one end of the range,
         which an output polynomial of a PI model or a real PEA shows.
+    rate_tau : float
+        Time constant [s] of the filtered input rate |u'|_f of "both" and
+        "viscous".
     u_range : (float, float), optional
         Input range [V] that sizes the threshold grid and normalizes x; set
         from the training records by :meth:`fit` (or :meth:`with_range`).
+    relax : sequence of float
+        Time constants τ [s] of relaxation columns lag_τ(x) − x (weights ≥ 0).
     """
 
     def __init__(self, n_plays: int = 16, degree: int = 3, rate: str | None = None,
