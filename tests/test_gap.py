@@ -13,8 +13,8 @@ import gap_truth as tr
 from fonbw import plant
 from fonbw.gap import diagnose
 from fonbw.gap import effects as fx
-from fonbw.gap.filters import first_order
 from fonbw.gap.checks import coverage, remaining
+from fonbw.gap.filters import first_order
 from fonbw.gap.fitter import Fitter, decimate
 from fonbw.gap.localize import branch, localize, noise_floor, reversal_age
 from fonbw.io import Record, write_csv
