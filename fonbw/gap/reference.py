@@ -385,7 +385,7 @@ class ReferenceHysteresis:
         first = 0 if self.offset else 1
         m = range(self.n_plays)
         plays = [f"play{j}" + (f"_b{i}" if self.level else "") for i in range(self.level + 1) for j in m]
-        frac = ["D^mu u"] if self.rate in ("fractional", "both", "viscous") else []
+        frac = ["D^mu u"] if "mu" in self.theta_names else []
         relax = [f"relax{t:g}s" for t in self.relax]
         return plays + [f"x^{i}" for i in range(first, self.degree + 1)] + frac + relax
 
@@ -462,7 +462,7 @@ class ReferenceHysteresis:
         first = 0 if self.offset else 1
         for i in range(first, self.degree + 1):
             out[:, q + i - first] = x ** i
-        if self.rate in ("fractional", "both", "viscous"):
+        if "mu" in self.theta_names:
             # measured from the first sample, so that a record starting away
             # from 0 V does not see a step at t = 0
             out[:, q + self.degree + 1 - first] = apply_op(make_op(theta[-1], dt, "fast"), u - u[0])
