@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 
+import gap_truth  # benchmarks/, on the path through conftest.py
 from fonbw.gap.reference import ReferenceHysteresis, play_bank
 from fonbw.io import Record
 from fonbw.signals import eq19_input, sine_input
@@ -210,13 +211,7 @@ def test_viscous_widening_and_relaxations_follow_a_maxwell_slip_core():
     # "both" widens the small thresholds hardly at all and has no lag of the
     # reversible part; measured 0.080 → 0.047 µm on training and 0.546 → 0.226 µm
     # on the 20 Hz sine (noise 0.020 µm)
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    import gap_truth as tr
-
-    sc = tr.draw_scenario(21, "null", scale=0.25, family="rate")
+    sc = gap_truth.draw_scenario(21, "null", scale=0.25, family="rate")
     kw = dict(n_plays=16, degree=5, level=6, initial="rest")
     both = ReferenceHysteresis(rate="both", **kw).fit(sc["train"], seed=0, max_evals=100)
     visc = ReferenceHysteresis(rate="viscous", relax=(0.002, 0.005, 0.01, 0.02, 0.05), **kw).fit(
