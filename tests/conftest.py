@@ -21,8 +21,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 # two xdist workers on two cores: a BLAS thread pool per worker oversubscribes
-# them (the gap tests' least-squares steps ran about 20 times slower that way)
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+# them (the gap tests' least-squares steps ran about 20 times slower that way),
+# and so does numba's for its parallel population kernel (the suite took 8 min
+# 05 s with two numba threads a worker, 7 min 35 s with one, back to back)
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 
