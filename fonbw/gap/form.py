@@ -93,6 +93,10 @@ REFERENCE_DIRECTIONS = 16
 #: amplifier then names a delay. Plays widened by the filtered rate and a
 #: lag of the reversible part are what an input lag does to a hysteresis,
 #: so the two need evidence the reference cannot mimic (step edges) first.
+#: Asked only last, to re-judge effects accepted beside a material form, it
+#: took up a real 26.8 σ amplifier on a rate-dependent core (seed 21036): its
+#: θ is searched without the effect and held in the joint refits, so an
+#: amplifier added on top lags the input twice (BENCHMARKS.md).
 REFERENCE_RATE = "both"
 REFERENCE_RELAX = ()
 
