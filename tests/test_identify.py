@@ -3,6 +3,10 @@
 Reference data come from the public model classes (fonbw.FONBW, NBW, CBW),
 not from the population kernel the identification uses.
 """
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -202,21 +206,26 @@ before = numba.get_num_threads()
 used = []
 identify(rec, "nbw", seed=0, max_evals=100, polish=False, workers=1,
          callback=lambda x, f, nit: used.append(numba.get_num_threads()))
-print(before, sorted(set(used)), numba.get_num_threads())
+# the parallel population kernel on two threads against each model run alone
+from fonbw.hysteresis import FONBW, simulate_population
+rng = np.random.default_rng(0)
+th = np.array([[0.18, -1.4e-4, -7.7e-8, -2.0, 0.02, 0.8, 1.5, 0.95, 0.85]]) * rng.uniform(0.9, 1.0, (16, 9))
+pop = simulate_population("fonbw", th, u, 5e-3)
+alone = np.array([FONBW(t[:3], *t[3:]).simulate(u, 5e-3) for t in th])
+print(before, sorted(set(used)), numba.get_num_threads(), float(np.max(np.abs(pop - alone))))
 """
 
 
 def test_workers_sets_and_restores_numba_threads():
-    import os
-    import subprocess
-    import sys
-
-    # two numba threads in a process of its own: the suite's workers run with one
+    # two numba threads in a process of its own: the suite's workers run with one,
+    # so this is also where the population kernel runs on more than one thread
     env = {**os.environ, "NUMBA_NUM_THREADS": "2"}
     out = subprocess.run([sys.executable, "-c", _WORKERS_CHECK], env=env, capture_output=True, text=True,
                          timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.split() == ["2", "[1]", "2"]
+    before, used, after, diff = out.stdout.split()
+    assert (before, used, after) == ("2", "[1]", "2")
+    assert float(diff) == 0.0
 
 
 def test_bounds_override_is_used(truth):
