@@ -49,10 +49,10 @@ def main(argv=None):
         sc = draw_scenario(seed, scale=DEFAULTS["scale"], family=fam, mid_drive=DEFAULTS["mid_drive"])
         inj = {k: (round(v["magnitude"], 1), v.get("params")) for k, v in sc["injected"].items()}
         print(f"seed {seed}: {fam} core, {sc['kind']} {inj or ''}, noise {sc['noise_std']:.4f} µm", flush=True)
+        ref = ReferenceHysteresis(n_plays=16, degree=5, level=6, rate="viscous", initial="rest",
+                                  relax=RELAX).with_range(sc["train"])
         for fc in [None] + a.fc:
             t0 = time.perf_counter()
-            ref = ReferenceHysteresis(n_plays=16, degree=5, level=6, rate="viscous", initial="rest",
-                                      relax=RELAX).with_range(sc["train"])
             fit = ref.fit(_lagged(sc["train"], fc), seed=0, max_evals=a.evals)
             val = _lagged(sc["validate"], fc)
             rv = math.sqrt(np.mean(np.concatenate([(r.y - fit.predict(r)) ** 2 for r in val])))

@@ -193,35 +193,35 @@ def test_all_divergent_raises_clear_error(monkeypatch, truth):
         identify(rec, "nbw", seed=0, max_evals=200)
 
 
+# TRUE and DT are prepended by the test
 _WORKERS_CHECK = """
 import numba, numpy as np
-from fonbw.hysteresis import NBW
+from fonbw.hysteresis import FONBW, param_names, simulate_population
 from fonbw.identify import identify
 from fonbw.io import Record
 from fonbw.signals import eq19_input
-u = eq19_input(200.0, 2.0)[1]
-m = NBW(ku=[0.18, -1.4e-4, -7.7e-8], kh=-2.0, rho=0.02, sigma=0.8, n=1.5)
-rec = Record.from_arrays(u=u, y=m.simulate(u, 5e-3), dt=5e-3)
+truth = FONBW(**TRUE)
+u = eq19_input(1.0 / DT, 2.0)[1]
+rec = Record.from_arrays(u=u, y=truth.simulate(u, DT), dt=DT)
 before = numba.get_num_threads()
 used = []
 identify(rec, "nbw", seed=0, max_evals=100, polish=False, workers=1,
          callback=lambda x, f, nit: used.append(numba.get_num_threads()))
 # the parallel population kernel on two threads against each model run alone
-from fonbw.hysteresis import FONBW, simulate_population
-rng = np.random.default_rng(0)
-th = np.array([[0.18, -1.4e-4, -7.7e-8, -2.0, 0.02, 0.8, 1.5, 0.95, 0.85]]) * rng.uniform(0.9, 1.0, (16, 9))
-pop = simulate_population("fonbw", th, u, 5e-3)
-alone = np.array([FONBW(t[:3], *t[3:]).simulate(u, 5e-3) for t in th])
+vec = np.r_[TRUE["ku"], [TRUE[k] for k in param_names("fonbw")[3:]]]
+th = vec * np.random.default_rng(0).uniform(0.9, 1.0, (16, vec.size))
+pop = simulate_population("fonbw", th, u, DT)
+alone = np.array([FONBW(t[:3], *t[3:]).simulate(u, DT) for t in th])
 print(before, sorted(set(used)), numba.get_num_threads(), float(np.max(np.abs(pop - alone))))
 """
 
 
-def test_workers_sets_and_restores_numba_threads():
+def test_workers_and_the_population_kernel_on_two_numba_threads():
     # two numba threads in a process of its own: the suite's workers run with one,
     # so this is also where the population kernel runs on more than one thread
     env = {**os.environ, "NUMBA_NUM_THREADS": "2"}
-    out = subprocess.run([sys.executable, "-c", _WORKERS_CHECK], env=env, capture_output=True, text=True,
-                         timeout=300)
+    code = f"TRUE = {TRUE!r}\nDT = {DT!r}\n" + _WORKERS_CHECK
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     before, used, after, diff = out.stdout.split()
     assert (before, used, after) == ("2", "[1]", "2")
