@@ -209,7 +209,9 @@ def run_scenario(seed, budget, options=None):
         from fonbw.gap import diagnose
     try:
         t1 = time.perf_counter()
-        res = diagnose(sc["train"], sc["validate"], seed=seed, budget=budget, **(opt["diagnose_kwargs"] or {}))
+        # the scenarios share the cores, one process each
+        kw = {"workers": 1, **(opt["diagnose_kwargs"] or {})}
+        res = diagnose(sc["train"], sc["validate"], seed=seed, budget=budget, **kw)
         row["wall_s"] = time.perf_counter() - t1
         row.update(_verdict(res))
     except Exception as exc:  # keep the run going; the summary counts failures

@@ -26,6 +26,9 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 # 05 s with two numba threads a worker, 7 min 35 s with one, back to back)
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
+# ... and a diagnosis's worker processes would, too: each test's diagnosis runs
+# in its own process (tests/test_gap_workers.py asks for workers explicitly)
+os.environ.setdefault("FONBW_WORKERS", "1")
 
 
 def pytest_configure(config):

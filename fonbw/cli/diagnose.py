@@ -28,6 +28,9 @@ def add_arguments(parser):
                         help="evaluations of the nominal identification and of each candidate's "
                              "global search (default 1000)")
     parser.add_argument("--progress", action="store_true", help="report each step on stderr")
+    parser.add_argument("--workers", type=int, default=None, metavar="N",
+                        help="processes for the candidate refits of each step (default: $FONBW_WORKERS, "
+                             "else the cores, at most 4; 1 runs everything in this process)")
     add_record_arguments(parser)
     return parser
 
@@ -45,7 +48,7 @@ def run(ns):
     val = read_records(ns.validate, ns)
     model = load_model(ns.model) if getattr(ns, "model", None) else None
     res = diagnose(train, val, model=model, seed=ns.seed, progress=getattr(ns, "progress", False),
-                   budget=getattr(ns, "budget", 1000))
+                   budget=getattr(ns, "budget", 1000), workers=getattr(ns, "workers", None))
     write_json(res, ns.json)
     if getattr(ns, "html", None):
         write_html(res, ns.html)

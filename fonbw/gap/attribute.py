@@ -74,13 +74,14 @@ from .fitter import KIND, Fitter, decimate, nominal_search, x_from_model
 from .localize import localize, noise_floor
 from .result import DiagnosisResult, jsonable
 from .starts import RecordStarts, cut
+from .workers import Pool, default_workers
 
 __all__ = ["diagnose", "Diagnosis"]
 
 
 def diagnose(train_records, validate_records, model=None, seed=0, progress=False, budget=1000,
              refit_evals=90, global_evals=None, coarse_rate=1000.0, effects=fx.EFFECTS, max_effects=3,
-             min_gap_closed=0.2, floor_tol=0.2, tie_margin=0.05, N=3, memory="fast"):
+             min_gap_closed=0.2, floor_tol=0.2, tie_margin=0.05, N=3, memory="fast", workers=None):
     """Diagnose the gap between the nominal FONBW model and measured records.
 
     Parameters
@@ -128,6 +129,10 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
         Order of g(u) of the nominal model.
     memory : str
         GL memory engine.
+    workers : int, optional
+        Processes for the candidates of a greedy step (see
+        :mod:`fonbw.gap.workers`). Default: the cores this process may use,
+        at most 4; 1 in a process that cannot fork (a Dask worker).
 
     Returns
     -------
@@ -142,7 +147,7 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
                      budget=budget, refit_evals=refit_evals, global_evals=global_evals,
                      coarse_rate=coarse_rate, effects=effects, max_effects=max_effects,
                      min_gap_closed=min_gap_closed, floor_tol=floor_tol, tie_margin=tie_margin,
-                     N=N, memory=memory).run()
+                     N=N, memory=memory, workers=workers).run()
 
 
 class Diagnosis:
@@ -162,12 +167,16 @@ class Diagnosis:
     def __init__(self, train_records, validate_records, model=None, seed=0, progress=False,
                  budget=1000, refit_evals=90, global_evals=None, coarse_rate=1000.0,
                  effects=fx.EFFECTS, max_effects=3, min_gap_closed=0.2, floor_tol=0.2,
-                 tie_margin=0.05, N=3, memory="fast"):
+                 tie_margin=0.05, N=3, memory="fast", workers=None):
         from ..identify import search_space
 
         self.t_start = time.perf_counter()
         self.model_given, self.seed, self.budget, self.N, self.memory = model, seed, budget, N, memory
         self.refit_evals = refit_evals
+        self.workers = default_workers() if workers is None else int(workers)
+        if self.workers < 1:
+            raise ValueError(f"diagnose: workers must be at least 1, got {workers!r}")
+        self.pool = None
         self.global_evals = int(budget if global_evals is None else global_evals)
         self.max_effects, self.min_gap_closed = max_effects, min_gap_closed
         self.floor_tol, self.tie_margin = floor_tol, tie_margin
@@ -225,6 +234,13 @@ class Diagnosis:
         self.fitter = Fitter(self.train, space, N=self.N, memory=self.memory, skip=self.skip_tr)
         self.fitter_c = Fitter(self.coarse, space, N=self.N, memory=self.memory,
                                skip=[int(math.ceil(b / self.q)) for b in self.skip_tr])
+
+    def map(self, fn, items, on_result=None):
+        """``[fn(x) for x in items]`` on the diagnosis's workers (:meth:`run`
+        holds them), or here when a stage runs on its own."""
+        if self.pool is None:
+            return Pool(1).map(fn, items, on_result=on_result)
+        return self.pool.map(fn, items, on_result=on_result)
 
     def say(self, *a):
         """One progress line on stderr (only with ``progress``)."""
@@ -414,18 +430,30 @@ class Diagnosis:
         return out
 
     def try_candidates(self, step, pool, t0):
-        """Refit and check each library effect of `pool` on top of the current configuration."""
-        results = []
+        """Refit and check each library effect of `pool` on top of the current
+        configuration, on up to :attr:`workers` processes (:mod:`fonbw.gap.workers`)."""
         cur = self.current
-        for i in pool:
+
+        def one(i):
             fit, pv, mse = self.refit_candidate(cur["idx"] + [i], cur["fit"])
-            eff = cur["eff"] + [self.lib[i]]
-            ch = self.check_candidate(i, step, fit, pv, mse, eff)
-            results.append({"i": i, "fit": fit, "pv": pv, "mse": mse, "eff": eff, "checks": ch})
-            gc = ch["gap_closed_step"] if ch["gap_closed_step"] is not None else -math.inf
-            self.say(f"step {step + 1}: +{self.lib[i].name}: gap closed {gc:.3f}, ΔBIC {ch['delta_bic']:.3g}, "
-                     f"{'passes' if ch['passed'] else 'fails'} ({time.perf_counter() - t0:.0f} s)")
-        return results
+            return fit, pv, mse, self.check_candidate(i, step, fit, pv, mse, cur["eff"] + [self.lib[i]])
+
+        def said(j, r):
+            gc = r[3]["gap_closed_step"] if r[3]["gap_closed_step"] is not None else -math.inf
+            self.say(f"step {step + 1}: +{self.lib[pool[j]].name}: gap closed {gc:.3f}, ΔBIC "
+                     f"{r[3]['delta_bic']:.3g}, {'passes' if r[3]['passed'] else 'fails'} "
+                     f"({time.perf_counter() - t0:.0f} s)")
+
+        # the slowest refits first, so that on workers none starts last:
+        # an output nonlinearity (Gauss-Newton in every evaluation), then the
+        # input-side blocks (the hysteresis simulated again in every evaluation)
+        order = sorted(range(len(pool)), key=lambda j: (not self.lib[pool[j]].output_nonlinear,
+                                                          not self.lib[pool[j]].input_side))
+        items = [pool[j] for j in order]
+        done = self.map(one, items, on_result=lambda k, r: said(order[k], r))
+        by_i = dict(zip(items, done))
+        return [{"i": i, "fit": by_i[i][0], "pv": by_i[i][1], "mse": by_i[i][2], "eff": cur["eff"] + [self.lib[i]],
+                 "checks": by_i[i][3]} for i in pool]
 
     def _first_step_candidates(self, results):
         """The ``candidates`` entries of the first greedy step (every effect alone)."""
@@ -568,12 +596,19 @@ class Diagnosis:
 
     def run(self):
         """All stages; returns the :class:`DiagnosisResult`."""
-        self.fit_nominal()
-        self.localize_residual()
-        self.form_stage()
-        self.attribute()
-        fm.judge_on_effects(self)
+        # the workers start with the first step that has candidates, and serve every step
+        with Pool(self.workers) as self.pool:
+            self.fit_nominal()
+            self.localize_residual()
+            self.form_stage()
+            self.attribute()
+            fm.judge_on_effects(self)
+        self.pool = None
         return self.result()
+
+    def __getstate__(self):
+        # a worker gets the diagnosis without the pool (pipes, processes)
+        return {**self.__dict__, "pool": None}
 
 
 class NominalDiverges(ValueError):

@@ -56,6 +56,10 @@ class FonbwCore:
         self.log_scale = list(space.log_scale)
         self._powers = {}
 
+    def __getstate__(self):
+        # keyed by the ids of this process's arrays: another process starts it empty
+        return {**self.__dict__, "_powers": {}}
+
     def theta(self, X):
         """Natural basis parameter rows (P, d) of search rows X (P, nx)."""
         p = self.space.basis_params(np.atleast_2d(X))
@@ -130,6 +134,10 @@ class ReferenceCore:
                              f"got {self.basis.shape[0]}")
         self.n_base = int(self.active.sum()) if self.basis is None else self.basis.shape[1]
         self._cache = {}
+
+    def __getstate__(self):
+        # keyed by the ids of this process's arrays: another process starts it empty
+        return {**self.__dict__, "_cache": {}}
 
     @property
     def n_params(self) -> int:

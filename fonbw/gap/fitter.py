@@ -95,6 +95,13 @@ class Fitter:
         self.nx = self.core.nx
         self._sims, self._sim_bytes, self._fixed = collections.OrderedDict(), 0, collections.OrderedDict()
 
+    def __getstate__(self):
+        # the caches are keyed by the ids of this process's arrays: another
+        # process (fonbw.gap.workers) starts them empty
+        state = dict(self.__dict__)
+        state["_sims"], state["_sim_bytes"], state["_fixed"] = collections.OrderedDict(), 0, collections.OrderedDict()
+        return state
+
     #: Bytes of simulated base columns kept between evaluations.
     cache_bytes = 128 * 2**20
 

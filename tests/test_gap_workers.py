@@ -1,0 +1,101 @@
+"""The diagnosis's worker processes (fonbw.gap.workers): the same results as
+the candidates run in process, bit for bit, errors that arrive as they were
+raised, a worker that dies reported instead of waited for, and no workers
+where a process may not start them."""
+import json
+import multiprocessing
+import os
+import signal
+
+import numpy as np
+import pytest
+
+import gap_truth as tr
+from fonbw.gap import diagnose
+from fonbw.gap import workers
+from fonbw.gap.workers import Pool, WorkerError, default_workers
+
+
+def test_map_returns_in_item_order_and_reports_each_result():
+    offset = np.arange(3.0)          # a closure over an array travels with the task
+    seen = []
+    with Pool(2) as pool:
+        out = pool.map(lambda k: (k, float(np.sum(offset * k)), os.getpid()), [3, 1, 2, 5],
+                       on_result=lambda j, r: seen.append(j))
+        # a second task on the same workers
+        again = pool.map(lambda k: -k, [4, 6])
+    assert [o[:2] for o in out] == [(3, 9.0), (1, 3.0), (2, 6.0), (5, 15.0)]
+    assert os.getpid() not in {o[2] for o in out} and len({o[2] for o in out}) == 2
+    assert sorted(seen) == [0, 1, 2, 3]
+    assert again == [-4, -6]
+
+
+def test_one_worker_runs_in_this_process():
+    with Pool(1) as pool:
+        assert pool.map(lambda k: os.getpid(), [1, 2]) == [os.getpid()] * 2
+
+
+def _fails(k):
+    if k == 2:
+        raise ValueError(f"record {k} has no samples")
+    return k
+
+
+def test_an_error_in_a_worker_is_raised_here_as_itself():
+    with Pool(2) as pool:
+        with pytest.raises(ValueError, match="record 2 has no samples") as info:
+            pool.map(_fails, [1, 2, 3])
+        # the worker's traceback rides along as the cause
+        assert "_fails" in str(info.value.__cause__)
+        # the pool starts afresh after an error
+        assert pool.map(_fails, [1, 3]) == [1, 3]
+
+
+def test_a_worker_that_dies_is_reported_not_waited_for():
+    with Pool(2) as pool:
+        with pytest.raises(WorkerError, match="exit code -9"):
+            pool.map(lambda k: os.kill(os.getpid(), signal.SIGKILL) if k == 1 else k, [0, 1, 2])
+
+
+def _daemon_default(q):
+    q.put(default_workers())
+
+
+def test_no_workers_in_a_daemonic_process(monkeypatch):
+    monkeypatch.delenv("FONBW_WORKERS", raising=False)
+    q = multiprocessing.get_context("spawn").Queue()
+    p = multiprocessing.get_context("spawn").Process(target=_daemon_default, args=(q,), daemon=True)
+    p.start()
+    got = q.get(timeout=60)
+    p.join()
+    assert got == 1
+    assert default_workers() == min(len(os.sched_getaffinity(0)), 4)
+    monkeypatch.setenv("FONBW_WORKERS", "3")
+    assert default_workers() == 3
+    monkeypatch.setenv("FONBW_WORKERS", "two")
+    with pytest.raises(ValueError, match="FONBW_WORKERS"):
+        default_workers()
+
+
+def test_a_diagnosis_on_workers_equals_the_one_in_process(monkeypatch):
+    # one BLAS thread here (tests/conftest.py) and in the workers: the same
+    # sums in the same order, so the same numbers to the last bit
+    sc = tr.draw_scenario(12, "null", scale=0.25)
+    truth = sc["truth"]
+    truth.effects = {"amplifier": {"f_c": 250.0, "slew": None}}
+    tr_in, va_in = tr.default_experiments(scale=0.25)
+    train = [truth.record(u, n, i) for i, (n, u) in enumerate(tr_in)]
+    val = [truth.record(u, n, 50 + i) for i, (n, u) in enumerate(va_in)]
+    kw = dict(seed=4, budget=200, global_evals=60, refit_evals=20, effects=("creep", "amplifier", "delay"))
+    started = []
+    real = workers._Worker.__init__
+    monkeypatch.setattr(workers._Worker, "__init__", lambda self: (started.append(1), real(self))[1])
+    out = {}
+    for w in (1, 2):
+        d = diagnose(train, val, workers=w, **kw).to_dict()
+        d.pop("timing")
+        out[w] = d
+    assert len(started) == 2      # the second diagnosis ran on two workers
+    assert out[1]["verdict"]["effects"][:1] == ["amplifier"]
+    assert len(out[1]["candidates"]) == 3
+    assert json.dumps(out[2], sort_keys=True) == json.dumps(out[1], sort_keys=True)
