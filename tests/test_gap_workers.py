@@ -86,7 +86,7 @@ def test_a_diagnosis_on_workers_equals_the_one_in_process(monkeypatch):
     tr_in, va_in = tr.default_experiments(scale=0.25)
     train = [truth.record(u, n, i) for i, (n, u) in enumerate(tr_in)]
     val = [truth.record(u, n, 50 + i) for i, (n, u) in enumerate(va_in)]
-    kw = dict(seed=4, budget=200, global_evals=60, refit_evals=20, effects=("creep", "amplifier", "delay"))
+    kw = dict(seed=4, budget=150, global_evals=40, refit_evals=15, effects=("creep", "amplifier", "delay"))
     started = []
     real = workers._Worker.__init__
     monkeypatch.setattr(workers._Worker, "__init__", lambda self: (started.append(1), real(self))[1])
@@ -99,3 +99,45 @@ def test_a_diagnosis_on_workers_equals_the_one_in_process(monkeypatch):
     assert out[1]["verdict"]["effects"][:1] == ["amplifier"]
     assert len(out[1]["candidates"]) == 3
     assert json.dumps(out[2], sort_keys=True) == json.dumps(out[1], sort_keys=True)
+
+
+def _children(pid):
+    """PIDs of the processes whose parent is `pid` (from /proc)."""
+    out = []
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                with open(f"/proc/{d}/stat") as fh:
+                    stat = fh.read()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                out.append(int(d))
+    return out
+
+
+def test_ctrl_c_during_a_step_stops_the_workers_and_exits_130(tmp_path):
+    from fonbw.io import write_csv
+    from test_cli import _interrupt, _popen, _wait_for
+
+    sc = tr.draw_scenario(12, "null", scale=0.25)
+    truth = sc["truth"]
+    truth.effects = {"amplifier": {"f_c": 250.0, "slew": None}}
+    tr_in, va_in = tr.default_experiments(scale=0.25)
+    args = ["diagnose", "--json", tmp_path / "out.json", "--workers", "2", "--progress", "--budget", "100"]
+    for kind, ins, off in (("train", tr_in, 0), ("validate", va_in, 50)):
+        for i, (name, u) in enumerate(ins):
+            rec = truth.record(u, name, off + i)
+            write_csv(tmp_path / f"{name}.csv", {"t": rec.t, "u": rec.u, "y": rec.y})
+            args += [f"--{kind}", tmp_path / f"{name}.csv"]
+    (tmp_path / "out.json").write_text('{"previous": "result"}\n')
+    p = _popen(args, env={**os.environ, "FONBW_WORKERS": "1"})
+    seen = _wait_for(p, r"step 1: \+\w+")     # the first candidate is back, the others are running
+    kids = _children(p.pid)
+    assert len(kids) == 2
+    code, err = _interrupt(p, seen)
+    assert code == 130 and "Traceback" not in err, err
+    assert "fonbw diagnose: interrupted" in err
+    assert (tmp_path / "out.json").read_text() == '{"previous": "result"}\n'
+    for k in kids:   # stopped and reaped, not left running
+        assert not os.path.exists(f"/proc/{k}")
