@@ -3,9 +3,10 @@
 Each candidate's joint refit and checks depend only on the diagnosis as it
 stands before the step, so the candidates of a step can run side by side.
 Threads would not do: a refit is mostly Python between short numpy calls.
-More BLAS or numba threads do not do either: measured on two cores (seed
-21000 of the blind harness, 20 s of 5 kHz records), a diagnosis took 196 s
-of wall time with two threads of each and 190 s with one.
+More BLAS or numba threads do not do either: on two cores, a diagnosis of
+30 s of 5 kHz records took 171 s with two threads of each and 173 s with
+one, and 113 s on two workers (``benchmarks/blind_gap.py --timing``,
+BENCHMARKS.md).
 
 Why not :mod:`multiprocessing`: a fork of this process dies at once once
 numba's OpenMP threading layer has run here (the FONBW population kernel
