@@ -35,13 +35,12 @@ def test_one_worker_runs_in_this_process():
         assert pool.map(lambda k: os.getpid(), [1, 2]) == [os.getpid()] * 2
 
 
-def _fails(k):
-    if k == 2:
-        raise ValueError(f"record {k} has no samples")
-    return k
-
-
 def test_an_error_in_a_worker_is_raised_here_as_itself():
+    def _fails(k):   # nested: it travels by value, the worker need not import this module
+        if k == 2:
+            raise ValueError(f"record {k} has no samples")
+        return k
+
     with Pool(2) as pool:
         with pytest.raises(ValueError, match="record 2 has no samples") as info:
             pool.map(_fails, [1, 2, 3])
@@ -57,24 +56,21 @@ def test_a_worker_that_dies_is_reported_not_waited_for():
             pool.map(lambda k: os.kill(os.getpid(), signal.SIGKILL) if k == 1 else k, [0, 1, 2])
 
 
-def _daemon_default(q):
-    q.put(default_workers())
-
-
 def test_no_workers_in_a_daemonic_process(monkeypatch):
     monkeypatch.delenv("FONBW_WORKERS", raising=False)
-    q = multiprocessing.get_context("spawn").Queue()
-    p = multiprocessing.get_context("spawn").Process(target=_daemon_default, args=(q,), daemon=True)
-    p.start()
-    got = q.get(timeout=60)
-    p.join()
-    assert got == 1
     assert default_workers() == min(len(os.sched_getaffinity(0)), 4)
     monkeypatch.setenv("FONBW_WORKERS", "3")
     assert default_workers() == 3
     monkeypatch.setenv("FONBW_WORKERS", "two")
     with pytest.raises(ValueError, match="FONBW_WORKERS"):
         default_workers()
+    # a Dask worker is a daemonic process: it may not have children
+    monkeypatch.setattr(multiprocessing.current_process(), "_config",
+                        {**multiprocessing.current_process()._config, "daemon": True})
+    assert multiprocessing.current_process().daemon
+    assert default_workers() == 1
+    with Pool(2) as pool:
+        assert pool.map(lambda k: os.getpid(), [1, 2]) == [os.getpid()] * 2
 
 
 def test_a_diagnosis_on_workers_equals_the_one_in_process(monkeypatch):
