@@ -76,10 +76,10 @@ def test_no_workers_in_a_daemonic_process(monkeypatch):
 def test_a_diagnosis_on_workers_equals_the_one_in_process(monkeypatch):
     # one BLAS thread here (tests/conftest.py) and in the workers: the same
     # sums in the same order, so the same numbers to the last bit
-    sc = tr.draw_scenario(12, "null", scale=0.25)
+    sc = tr.draw_scenario(12, "null", scale=0.15)
     truth = sc["truth"]
     truth.effects = {"amplifier": {"f_c": 250.0, "slew": None}}
-    tr_in, va_in = tr.default_experiments(scale=0.25)
+    tr_in, va_in = tr.default_experiments(scale=0.15)
     train = [truth.record(u, n, i) for i, (n, u) in enumerate(tr_in)]
     val = [truth.record(u, n, 50 + i) for i, (n, u) in enumerate(va_in)]
     kw = dict(seed=4, budget=150, global_evals=40, refit_evals=15, effects=("creep", "amplifier", "delay"))
@@ -116,10 +116,10 @@ def test_ctrl_c_during_a_step_stops_the_workers_and_exits_130(tmp_path):
     from fonbw.io import write_csv
     from test_cli import _interrupt, _popen, _wait_for
 
-    sc = tr.draw_scenario(12, "null", scale=0.25)
+    sc = tr.draw_scenario(12, "null", scale=0.15)
     truth = sc["truth"]
     truth.effects = {"amplifier": {"f_c": 250.0, "slew": None}}
-    tr_in, va_in = tr.default_experiments(scale=0.25)
+    tr_in, va_in = tr.default_experiments(scale=0.15)
     args = ["diagnose", "--json", tmp_path / "out.json", "--workers", "2", "--progress", "--budget", "100"]
     for kind, ins, off in (("train", tr_in, 0), ("validate", va_in, 50)):
         for i, (name, u) in enumerate(ins):
