@@ -298,6 +298,17 @@ def _core_params(core):
     return "fonbw", {k: (list(map(float, np.atleast_1d(v))) if k == "ku" else v) for k, v in p.items()}
 
 
+def fixed_case(seed, effects, scale=1.0, kind="null"):
+    """A fixed case for tests: scenario `seed`'s truth with `effects` instead of
+    the drawn ones, on the default experiments; returns (truth, training
+    records, validation records)."""
+    truth = draw_scenario(seed, kind, scale=scale)["truth"]
+    truth.effects = effects
+    tr_in, va_in = default_experiments(scale=scale)
+    return (truth, [truth.record(u, n, i) for i, (n, u) in enumerate(tr_in)],
+            [truth.record(u, n, 50 + i) for i, (n, u) in enumerate(va_in)])
+
+
 def draw_scenario(seed, kind=None, scale=1.0, fs=FS, family=None, core=None, mid_drive=0.0, pool=None):
     """A random blind scenario.
 

@@ -504,12 +504,7 @@ def test_blind_amplifier_lag_is_not_taken_for_a_delay():
     # an RC amplifier (two poles in the truth, one in the candidate): the
     # delay and the resonance blocks lag too and close part of the gap, but
     # the amplifier must be named
-    sc = tr.draw_scenario(12, "null", scale=0.5)
-    truth = sc["truth"]
-    truth.effects = {"amplifier": {"f_c": 250.0, "slew": None}}
-    tr_in, va_in = tr.default_experiments(scale=0.5)
-    train = [truth.record(u, n, i) for i, (n, u) in enumerate(tr_in)]
-    val = [truth.record(u, n, 50 + i) for i, (n, u) in enumerate(va_in)]
+    _, train, val = tr.fixed_case(12, {"amplifier": {"f_c": 250.0, "slew": None}}, scale=0.5)
     res = diagnose(train, val, seed=4, **FAST)
     v = res["verdict"]
     assert v["effects"][:1] == ["amplifier"]

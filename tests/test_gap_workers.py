@@ -15,6 +15,9 @@ from fonbw.gap import diagnose
 from fonbw.gap import workers
 from fonbw.gap.workers import Pool, WorkerError, default_workers
 
+#: The fixed case: a FONBW core behind a 250-Hz amplifier.
+AMPLIFIER = {"amplifier": {"f_c": 250.0, "slew": None}}
+
 
 def test_map_returns_in_item_order_and_reports_each_result():
     offset = np.arange(3.0)          # a closure over an array travels with the task
@@ -76,12 +79,7 @@ def test_no_workers_in_a_daemonic_process(monkeypatch):
 def test_a_diagnosis_on_workers_equals_the_one_in_process(monkeypatch):
     # one BLAS thread here (tests/conftest.py) and in the workers: the same
     # sums in the same order, so the same numbers to the last bit
-    sc = tr.draw_scenario(12, "null", scale=0.15)
-    truth = sc["truth"]
-    truth.effects = {"amplifier": {"f_c": 250.0, "slew": None}}
-    tr_in, va_in = tr.default_experiments(scale=0.15)
-    train = [truth.record(u, n, i) for i, (n, u) in enumerate(tr_in)]
-    val = [truth.record(u, n, 50 + i) for i, (n, u) in enumerate(va_in)]
+    _, train, val = tr.fixed_case(12, AMPLIFIER, scale=0.15)
     kw = dict(seed=4, budget=150, global_evals=40, refit_evals=15, effects=("creep", "amplifier", "delay"))
     started = []
     real = workers._Worker.__init__
@@ -116,16 +114,12 @@ def test_ctrl_c_during_a_step_stops_the_workers_and_exits_130(tmp_path):
     from fonbw.io import write_csv
     from test_cli import _interrupt, _popen, _wait_for
 
-    sc = tr.draw_scenario(12, "null", scale=0.15)
-    truth = sc["truth"]
-    truth.effects = {"amplifier": {"f_c": 250.0, "slew": None}}
-    tr_in, va_in = tr.default_experiments(scale=0.15)
+    _, train, val = tr.fixed_case(12, AMPLIFIER, scale=0.15)
     args = ["diagnose", "--json", tmp_path / "out.json", "--workers", "2", "--progress", "--budget", "100"]
-    for kind, ins, off in (("train", tr_in, 0), ("validate", va_in, 50)):
-        for i, (name, u) in enumerate(ins):
-            rec = truth.record(u, name, off + i)
-            write_csv(tmp_path / f"{name}.csv", {"t": rec.t, "u": rec.u, "y": rec.y})
-            args += [f"--{kind}", tmp_path / f"{name}.csv"]
+    for kind, recs in (("train", train), ("validate", val)):
+        for i, rec in enumerate(recs):
+            write_csv(tmp_path / f"{kind}{i}.csv", {"t": rec.t, "u": rec.u, "y": rec.y})
+            args += [f"--{kind}", tmp_path / f"{kind}{i}.csv"]
     (tmp_path / "out.json").write_text('{"previous": "result"}\n')
     p = _popen(args, env={**os.environ, "FONBW_WORKERS": "1"})
     seen = _wait_for(p, r"step 1: \+\w+")     # the first candidate is back, the others are running
