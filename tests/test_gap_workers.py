@@ -83,7 +83,7 @@ def test_a_diagnosis_on_workers_equals_the_one_in_process(monkeypatch):
     kw = dict(seed=4, budget=150, global_evals=40, refit_evals=15, effects=("creep", "amplifier", "delay"))
     started = []
     real = workers._Worker.__init__
-    monkeypatch.setattr(workers._Worker, "__init__", lambda self: (started.append(1), real(self))[1])
+    monkeypatch.setattr(workers._Worker, "__init__", lambda self, *a: (started.append(1), real(self, *a))[1])
     out = {}
     for w in (1, 2):
         d = diagnose(train, val, workers=w, **kw).to_dict()

@@ -596,8 +596,9 @@ class Diagnosis:
 
     def run(self):
         """All stages; returns the :class:`DiagnosisResult`."""
-        # the workers start with the first step that has candidates, and serve every step
-        with Pool(self.workers) as self.pool:
+        # the workers start now and import the diagnosis's modules while the
+        # nominal is fitted here; they serve every stage that has several tasks
+        with Pool(self.workers, preload=("fonbw.gap.attribute",)).start() as self.pool:
             self.fit_nominal()
             self.localize_residual()
             self.form_stage()
