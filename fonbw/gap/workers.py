@@ -22,11 +22,12 @@ its modules while the nominal is fitted (``fonbw demo --quick``'s diagnosis:
 54 s in one process, 47 s with workers started at the first task, 44 s
 started first thing).
 
-A daemonic process (a Dask worker) runs the candidates itself, one after
-the other, as does ``workers=1``. A refit's numbers depend on the number of
-BLAS threads (level-2 products on long vectors split their sums by thread,
-see :mod:`fonbw.gap.blas`), so a diagnosis with ``workers=1`` under one BLAS
-thread gives the same result, bit for bit, as one on workers.
+A daemonic process (a Dask worker), or one on a system that is not POSIX,
+runs the candidates itself, one after the other, as does ``workers=1``. A
+refit's numbers depend on the number of BLAS threads (level-2 products on
+long vectors split their sums by thread, see :mod:`fonbw.gap.blas`), so a
+diagnosis with ``workers=1`` under one BLAS thread gives the same result,
+bit for bit, as one on workers.
 """
 from __future__ import annotations
 
@@ -50,8 +51,9 @@ _ONE_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THR
 
 
 def can_start() -> bool:
-    """True where this process may start worker processes (not a daemon)."""
-    return not multiprocessing.current_process().daemon
+    """True where this process may start worker processes: not a daemon, and
+    on a POSIX system (the pipes are handed over by descriptor)."""
+    return os.name == "posix" and not multiprocessing.current_process().daemon
 
 
 def default_workers() -> int:
@@ -78,8 +80,8 @@ def default_workers() -> int:
 
 # -- framing: an 8-byte length, then a pickle --------------------------------
 
-def _send(fh, obj, dumps=pickle.dumps):
-    data = dumps(obj)
+def _send(fh, obj):
+    data = pickle.dumps(obj)
     fh.write(struct.pack("<Q", len(data)))
     fh.write(data)
     fh.flush()
@@ -97,7 +99,8 @@ def _recv(fh):
 
 
 class WorkerError(RuntimeError):
-    """A task raised in a worker; the message carries the worker's traceback."""
+    """A worker ended during a task, or a task raised an exception that does
+    not pickle; the message says which, with the worker's traceback."""
 
 
 class _Worker:
