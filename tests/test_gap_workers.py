@@ -110,9 +110,23 @@ def _children(pid):
     return out
 
 
+def _terminal_job(args, env):
+    """The command line as a terminal's foreground job: a process group of its
+    own (its workers inherit it unless they leave) that takes SIGINT."""
+    import subprocess
+    import sys
+
+    def pre():
+        os.setsid()
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+    return subprocess.Popen([sys.executable, "-m", "fonbw", *map(str, args)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, env=env, preexec_fn=pre)
+
+
 def test_ctrl_c_during_a_step_stops_the_workers_and_exits_130(tmp_path):
     from fonbw.io import write_csv
-    from test_cli import _interrupt, _popen, _wait_for
+    from test_cli import _wait_for
 
     _, train, val = tr.fixed_case(12, AMPLIFIER, scale=0.15)
     args = ["diagnose", "--json", tmp_path / "out.json", "--workers", "2", "--progress", "--budget", "100"]
@@ -121,13 +135,17 @@ def test_ctrl_c_during_a_step_stops_the_workers_and_exits_130(tmp_path):
             write_csv(tmp_path / f"{kind}{i}.csv", {"t": rec.t, "u": rec.u, "y": rec.y})
             args += [f"--{kind}", tmp_path / f"{kind}{i}.csv"]
     (tmp_path / "out.json").write_text('{"previous": "result"}\n')
-    p = _popen(args, env={**os.environ, "FONBW_WORKERS": "1"})
-    seen = _wait_for(p, r"step 1: \+\w+")     # the first candidate is back, the others are running
-    kids = _children(p.pid)
-    assert len(kids) == 2
-    code, err = _interrupt(p, seen)
-    assert code == 130 and "Traceback" not in err, err
-    assert "fonbw diagnose: interrupted" in err
-    assert (tmp_path / "out.json").read_text() == '{"previous": "result"}\n'
-    for k in kids:   # stopped and reaped, not left running
-        assert not os.path.exists(f"/proc/{k}")
+    # while the workers still import (they start with the diagnosis), and mid-step
+    for when in (r"nominal fitted", r"step 1: \+\w+"):
+        p = _terminal_job(args, env={**os.environ, "FONBW_WORKERS": "1"})
+        seen = _wait_for(p, when)
+        kids = _children(p.pid)
+        assert len(kids) == 2
+        os.killpg(p.pid, signal.SIGINT)     # what Ctrl-C at a terminal does: the whole job
+        out, err = p.communicate(timeout=300)
+        code, err = p.returncode, seen.decode() + err.decode()
+        assert code == 130 and "Traceback" not in err, err
+        assert "fonbw diagnose: interrupted" in err
+        assert (tmp_path / "out.json").read_text() == '{"previous": "result"}\n'
+        for k in kids:   # stopped and reaped, not left running
+            assert not os.path.exists(f"/proc/{k}")

@@ -35,7 +35,6 @@ import multiprocessing
 import os
 import pickle
 import selectors
-import signal
 import struct
 import subprocess
 import sys
@@ -109,8 +108,12 @@ class _Worker:
         r_res, w_res = os.pipe()
         env = {**os.environ, **_ONE_THREAD,
                "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+        # a session of its own: a Ctrl-C at the terminal reaches only the
+        # pool's owner, which stops the workers (a worker still importing
+        # would print a traceback of its own)
         self.proc = subprocess.Popen([sys.executable, "-c", _MAIN, str(r_task), str(w_res), *preload],
-                                     pass_fds=(r_task, w_res), env=env, stdin=subprocess.DEVNULL)
+                                     pass_fds=(r_task, w_res), env=env, stdin=subprocess.DEVNULL,
+                                     start_new_session=True)
         os.close(r_task)
         os.close(w_res)
         self.tasks = os.fdopen(w_task, "wb")
@@ -258,9 +261,6 @@ def _serve(fd_in, fd_out, preload=()):
 
     for name in preload:
         importlib.import_module(name)
-
-    # Ctrl-C reaches the whole process group: the pool's owner stops the workers
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
     tasks, results = os.fdopen(fd_in, "rb"), os.fdopen(fd_out, "wb")
     fn = None
     while True:
