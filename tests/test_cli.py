@@ -198,13 +198,17 @@ def test_rest_cycle_start_identified_recorded_and_validated(tmp_path):
     assert "Traceback" not in r.stderr and not (tmp_path / "mid.json").exists()
 
 
-def _popen(args, env=None, umask=None):
+def _popen(args, env=None, umask=None, new_session=False):
     """The command line in a fresh process that handles SIGINT like a terminal's
-    foreground job (a background shell may have set it to be ignored)."""
+    foreground job (a background shell may have set it to be ignored); with
+    `new_session`, in a process group of its own that can be signalled whole,
+    as a terminal's Ctrl-C signals its job."""
     import os
     import signal
 
     def pre():
+        if new_session:
+            os.setsid()
         signal.signal(signal.SIGINT, signal.SIG_DFL)
         if umask is not None:
             os.umask(umask)

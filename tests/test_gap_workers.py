@@ -110,23 +110,9 @@ def _children(pid):
     return out
 
 
-def _terminal_job(args, env):
-    """The command line as a terminal's foreground job: a process group of its
-    own (its workers inherit it unless they leave) that takes SIGINT."""
-    import subprocess
-    import sys
-
-    def pre():
-        os.setsid()
-        signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-    return subprocess.Popen([sys.executable, "-m", "fonbw", *map(str, args)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, env=env, preexec_fn=pre)
-
-
 def test_ctrl_c_during_a_step_stops_the_workers_and_exits_130(tmp_path):
     from fonbw.io import write_csv
-    from test_cli import _wait_for
+    from test_cli import _popen, _wait_for
 
     _, train, val = tr.fixed_case(12, AMPLIFIER, scale=0.15)
     args = ["diagnose", "--json", tmp_path / "out.json", "--workers", "2", "--progress", "--budget", "100"]
@@ -137,7 +123,7 @@ def test_ctrl_c_during_a_step_stops_the_workers_and_exits_130(tmp_path):
     (tmp_path / "out.json").write_text('{"previous": "result"}\n')
     # while the workers still import (they start with the diagnosis), and mid-step
     for when in (r"nominal fitted", r"step 1: \+\w+"):
-        p = _terminal_job(args, env={**os.environ, "FONBW_WORKERS": "1"})
+        p = _popen(args, env={**os.environ, "FONBW_WORKERS": "1"}, new_session=True)
         seen = _wait_for(p, when)
         kids = _children(p.pid)
         assert len(kids) == 2

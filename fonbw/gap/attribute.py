@@ -132,7 +132,8 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
     workers : int, optional
         Processes for the candidates of a greedy step (see
         :mod:`fonbw.gap.workers`). Default: the cores this process may use,
-        at most 4; 1 in a process that cannot fork (a Dask worker).
+        at most 4 (or ``FONBW_WORKERS``); 1 in a process that cannot start
+        workers (a Dask worker).
 
     Returns
     -------
