@@ -1,15 +1,17 @@
-"""The mathematics of the memory engines, in plain numpy and scipy.
+"""The mathematics of the memory engines, in numpy and scipy.
 
 Grünwald–Letnikov weights (eq. A2) and the GL derivative of a whole signal;
 the fast engine's geometric tail modes and their error bound E1; the refined
 Oustaloup filter as a discrete state space; and :func:`blocked_solve`, the
 O(N log² N) exact history sum of long batch runs. The engine defaults live
-here too. Orders λ are dimensionless, steps in seconds.
+here too. Only the tail modes' nodes are compiled (numba), as every model
+built builds them. Orders λ are dimensionless, steps in seconds.
 """
 from __future__ import annotations
 
 import math
 
+import numba as nb
 import numpy as np
 
 ENGINES = ("fast", "exact", "short", "oustaloup")
@@ -106,25 +108,47 @@ def tail_modes(lam: float, K: int = FAST_K, M: int = FAST_M):
     lam = _check_lam(lam)
     if lam == 1.0 or M == 0:
         return np.zeros(0), np.zeros(0)
+    c, r = np.empty(int(M)), np.empty(int(M))
+    _tail_nodes(lam, int(K), int(M), c, r)
+    return c, r
+
+
+@nb.njit(cache=True)
+def _tail_nodes(lam, K, M, c, r):
+    """The nodes of :func:`tail_modes`, written into c and r.
+
+    Compiled because every model the identification tries builds two sets of
+    modes (in Python the per-node loops cost more than the model's simulation
+    on short records). libm per node, as numba's math functions are: numpy's
+    vectorized exp/log/expm1 differ from libm in the last bit on some CPUs,
+    and the native FMUs (C, libm) build the same modes and must match the
+    library bit for bit on every machine. The nodes' positions repeat
+    numpy.linspace's arithmetic, as the C code does.
+    """
     s_hi = 40.0 / (K + 1.0 - lam)
     s_lo = 1e-9
-    x = np.linspace(math.log(s_lo), math.log(s_hi), M)
-    hx = x[1] - x[0] if M > 1 else math.log(s_hi / s_lo)
-    # libm per node, not numpy's vectorized exp/log/expm1: those differ from
-    # libm in the last bit on some CPUs, and the native FMUs (C, libm) build the
-    # same modes and must match the library bit for bit on every machine.
-    s = np.array([math.exp(v) for v in x])
-    # (e^s - 1)^λ e^{-s(K)} computed in logs: e^s overflows for large s only in
-    # principle, but expm1 keeps the small-s end accurate.
-    logf = lam * np.array([math.log(math.expm1(v)) for v in s]) - s * K
-    q = -(math.sin(math.pi * lam) / math.pi) * hx * s * np.array([math.exp(v) for v in logf])
+    xlo, xhi = math.log(s_lo), math.log(s_hi)
+    A = math.sin(math.pi * lam) / math.pi
+    if M > 1:
+        step = (xhi - xlo) / (M - 1)
+        hx = (1.0 * step + xlo) - (0.0 * step + xlo)
+    else:
+        step = 0.0
+        hx = math.log(s_hi / s_lo)
+    for i in range(M):
+        x = xhi if (M > 1 and i == M - 1) else i * step + xlo
+        s = math.exp(x)
+        # (e^s - 1)^λ e^{-s K} computed in logs: e^s overflows for large s
+        # only in principle, but expm1 keeps the small-s end accurate.
+        logf = lam * math.log(math.expm1(s)) - s * K
+        c[i] = -A * hx * s * math.exp(logf)
+        r[i] = math.exp(-s)
     # The trapezoid nodes below s_lo, continued to -∞: there (e^s − 1)^λ ≈ s^λ
     # and e^{-s j} ≈ e^{-s_lo j} for every lag j ≪ 1/s_lo, so they sum to a
     # geometric series carried by the lowest node. Dropping it costs about
     # j·s_lo^(1+λ) per lag: 4e-8 of E1 over 1e5 lags at λ = 0.3.
     g = math.exp(-hx * (1.0 + lam))
-    q[0] += -(math.sin(math.pi * lam) / math.pi) * hx * s_lo ** (1.0 + lam) * g / (1.0 - g)
-    return q, np.array([math.exp(-v) for v in s])
+    c[0] += -A * hx * s_lo ** (1.0 + lam) * g / (1.0 - g)
 
 
 def tail_error(lam: float, K: int = FAST_K, M: int = FAST_M, horizon: int = E1_HORIZON) -> float:
