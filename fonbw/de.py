@@ -178,6 +178,7 @@ def jde_minimize(func_pop: Callable[[np.ndarray], np.ndarray],
                  patience: int = 50,
                  polish: bool | str = True,
                  polish_maxfev: int | None = None,
+                 polish_rtol: float | None = None,
                  progress: bool = False,
                  callback: Callable | None = None,
                  x0: Sequence[float] | None = None) -> DEResult:
@@ -215,6 +216,12 @@ def jde_minimize(func_pop: Callable[[np.ndarray], np.ndarray],
     polish_maxfev : int, optional
         Evaluation budget of the polish, taken out of ``max_evals``.
         Default ``min(40 (2d + 1), max_evals // 10)``.
+    polish_rtol : float, optional
+        Relative tolerance of an L-BFGS-B polish: it stops once an iteration
+        lowers the cost by at most ``polish_rtol`` times the cost before it,
+        and the run ends there; the evaluations it leaves are not spent.
+        Default None: the polish goes on to its budget or to round-off, and
+        what it leaves goes back to DE (:meth:`JDESolver.resume`).
     progress : bool
         Show a tqdm progress bar counting evaluations.
     callback : callable, optional
@@ -230,7 +237,8 @@ def jde_minimize(func_pop: Callable[[np.ndarray], np.ndarray],
     return JDESolver(func_pop, bounds, log_scale=log_scale, popsize=popsize,
                      max_evals=max_evals, seed=seed, tol_stagnation=tol_stagnation,
                      patience=patience, polish=polish, polish_maxfev=polish_maxfev,
-                     progress=progress, callback=callback, x0=x0).solve()
+                     polish_rtol=polish_rtol, progress=progress, callback=callback,
+                     x0=x0).solve()
 
 
 def _check_options(space, popsize, max_evals, tol_stagnation, patience, polish,
@@ -294,7 +302,7 @@ class JDESolver:
     Parameters
     ----------
     func_pop, bounds, log_scale, popsize, max_evals, seed, tol_stagnation, \
-patience, polish, polish_maxfev, progress, callback, x0
+patience, polish, polish_maxfev, polish_rtol, progress, callback, x0
         As in :func:`jde_minimize`.
 
     Attributes
@@ -317,8 +325,12 @@ patience, polish, polish_maxfev, progress, callback, x0
 
     def __init__(self, func_pop, bounds, *, log_scale=None, popsize=None, max_evals=20000,
                  seed=None, tol_stagnation=1e-6, patience=50, polish=True,
-                 polish_maxfev=None, progress=False, callback=None, x0=None):
+                 polish_maxfev=None, polish_rtol=None, progress=False, callback=None,
+                 x0=None):
         self.space = _Space(bounds, log_scale)
+        if polish_rtol is not None and not (polish_rtol > 0.0):
+            raise ValueError(f"polish_rtol must be > 0, got {polish_rtol!r}")
+        self.polish_rtol = polish_rtol
         (self.P, self.max_evals, self.polish_method, self.polish_budget,
          self.x0) = _check_options(self.space, popsize, max_evals, tol_stagnation,
                                    patience, polish, polish_maxfev, x0)
@@ -477,7 +489,7 @@ patience, polish, polish_maxfev, progress, callback, x0
                         self._pbar.update(int(used))
                 else:
                     z_best, f_best = _polish(self.evaluate, z_best, f_best, self.polish_method,
-                                             budget, lambda: self.nfev)
+                                             budget, lambda: self.nfev, self.polish_rtol)
             except KeyboardInterrupt:
                 self.message = "interrupted"
                 self.success = False
@@ -493,7 +505,7 @@ patience, polish, polish_maxfev, progress, callback, x0
         (z, f) of the last polish.
         """
         while (self.message == _BUDGET_MSG and self.polish_method is not None
-               and self.max_evals - self.nfev >= 2 * self.P):
+               and self.polish_rtol is None and self.max_evals - self.nfev >= 2 * self.P):
             ib = int(np.argmin(self.cost))
             self.pop[ib], self.cost[ib] = z_best, f_best
             left = self.max_evals - self.nfev
@@ -521,11 +533,15 @@ patience, polish, polish_maxfev, progress, callback, x0
                         history=np.asarray(self.history, dtype=float))
 
 
-def _polish(evaluate, z0, f0, method, budget, get_nfev):
+def _polish(evaluate, z0, f0, method, budget, get_nfev, rtol=None):
     """Local refinement in unit-cube coordinates within ``budget`` evaluations.
 
     Returns the best (z, f) seen, which is never worse than (z0, f0): every
     evaluated point, finite-difference stencils included, is a candidate.
+    With `rtol`, L-BFGS-B stops after an iteration that lowers its cost by
+    at most `rtol` times the cost before it. (Dividing the cost by |f0|
+    instead, to make ``ftol`` relative, would not do: L-BFGS-B's first step
+    is not scale-invariant, its first Cauchy point is x - g.)
     """
     from scipy.optimize import minimize
 
@@ -565,10 +581,18 @@ def _polish(evaluate, z0, f0, method, budget, get_nfev):
         consider(Z, f)
         return f[0] if np.isfinite(f[0]) else 1e300
 
+    last = [f0]
+
+    def stop_when_flat(intermediate_result):
+        f = float(intermediate_result.fun)
+        if last[0] - f <= rtol * abs(last[0]):
+            raise StopIteration
+        last[0] = f
+
     try:
         if method == "L-BFGS-B":
             minimize(fun_grad, z0, jac=True, method="L-BFGS-B",
-                     bounds=[(0.0, 1.0)] * d,
+                     bounds=[(0.0, 1.0)] * d, callback=None if rtol is None else stop_when_flat,
                      options={"maxfun": budget, "ftol": 1e-15, "gtol": 1e-12})
         else:
             minimize(fun_only, z0, method="Nelder-Mead", bounds=[(0.0, 1.0)] * d,

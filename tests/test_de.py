@@ -214,6 +214,7 @@ def test_nelder_mead_polish_improves_over_no_polish():
     (dict(bounds=[(0, np.inf)]), "finite"),
     (dict(bounds=[(0, 1)], x0=[0.1, 0.2]), "x0"),
     (dict(bounds=[(0, 1)], polish="BFGS"), "polish"),
+    (dict(bounds=[(0, 1)], polish_rtol=0.0), "polish_rtol"),
 ])
 def test_validation_errors(bad, match):
     kw = dict(bad)
@@ -283,3 +284,31 @@ def test_callable_polish_is_counted_and_capped():
     assert res.nfev == sum(rows) + sum(min(7, b) for b in calls) <= 200
     assert sum(rows) > 160 and res.fun == 0.0
     np.testing.assert_allclose(res.x, 0.5)          # centre of (-1, 2)
+
+
+def test_polish_rtol_ends_a_flat_polish_and_leaves_the_rest_unspent():
+    # a shifted sphere: the minimum 1e-3 is reached in a few L-BFGS-B steps
+    def f(X):
+        return 1e-3 + np.sum((X - 0.3) ** 2, axis=1)
+
+    kw = dict(popsize=4, max_evals=194, polish_maxfev=190, x0=[0.35] * 6, seed=0)
+    full = jde_minimize(f, [(0.0, 1.0)] * 6, **kw)
+    flat = jde_minimize(f, [(0.0, 1.0)] * 6, polish_rtol=1e-9, **kw)
+    assert flat.fun - 1e-3 < 1e-12 and full.fun - 1e-3 < 1e-12
+    # without the tolerance the evaluations left go back to DE and a second polish
+    assert full.nfev > 150 and flat.nfev < 60
+
+
+def test_polish_rtol_follows_the_same_path_until_it_stops():
+    # an ill-conditioned ellipsoid is not flat within three gradient steps:
+    # the run must be the one without the tolerance, bit for bit (a cost
+    # rescaled to make ftol relative would not be: L-BFGS-B's first step
+    # depends on the cost's scale)
+    def ell(X):
+        return 1e-3 + 1e-2 * np.sum(np.logspace(0, 3, X.shape[1]) * (X - 0.3) ** 2, axis=1)
+
+    kw = dict(popsize=4, max_evals=43, polish_maxfev=39, x0=[0.35] * 6, seed=3)
+    a = jde_minimize(ell, [(0.0, 1.0)] * 6, **kw)
+    b = jde_minimize(ell, [(0.0, 1.0)] * 6, polish_rtol=1e-9, **kw)
+    assert a.fun < ell(np.array([[0.35] * 6]))[0]
+    assert a.x.tobytes() == b.x.tobytes() and a.fun == b.fun and a.nfev == b.nfev
