@@ -59,6 +59,19 @@ def test_a_worker_that_dies_is_reported_not_waited_for():
             pool.map(lambda k: os.kill(os.getpid(), signal.SIGKILL) if k == 1 else k, [0, 1, 2])
 
 
+def test_a_worker_that_died_before_its_task_is_reported():
+    # killed while idle: the pipe to it is broken when the task is sent
+    with Pool(2) as pool:
+        pool.start()
+        victim = pool._workers[1].proc
+        victim.kill()
+        victim.wait()
+        with pytest.raises(WorkerError, match=r"ended \(exit code -9\) before it took its task"):
+            pool.map(lambda k: k, [0, 1, 2])
+        # the pool starts afresh
+        assert pool.map(lambda k: 2 * k, [1, 2]) == [2, 4]
+
+
 def test_no_workers_in_a_daemonic_process(monkeypatch):
     monkeypatch.delenv("FONBW_WORKERS", raising=False)
     assert default_workers() == min(len(os.sched_getaffinity(0)), 4)

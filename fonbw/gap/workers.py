@@ -120,6 +120,18 @@ class _Worker:
         self.results = os.fdopen(r_res, "rb")
         self.fn_id = None
 
+    def send(self, msg, what):
+        """Send `msg`; a worker that has ended (its pipe broken) is a
+        :class:`WorkerError` that says so, whatever it was about to take."""
+        try:
+            _send(self.tasks, msg)
+        except (BrokenPipeError, ConnectionResetError):
+            try:
+                code = self.proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                code = None
+            raise WorkerError(f"a worker process ended (exit code {code}) before it took {what}") from None
+
     def close(self):
         for fh in (self.tasks, self.results):
             try:
@@ -209,7 +221,7 @@ class Pool:
         try:
             for w in self._workers[:n]:
                 if w.fn_id != self._fn_id:
-                    _send(w.tasks, ("fn", blob))
+                    w.send(("fn", blob), "its task")
                     w.fn_id = self._fn_id
                 self._give(w, todo, busy)
                 sel.register(w.results, selectors.EVENT_READ, w)
@@ -248,7 +260,7 @@ class Pool:
     def _give(w, todo, busy):
         if todo:
             j, x = todo.pop()
-            _send(w.tasks, ("item", (j, x)))
+            w.send(("item", (j, x)), f"item {j}")
             busy[w] = j
 
 
