@@ -280,17 +280,17 @@ def run(n, seed0, out, budget, only=None, options=None, cache_path=None, schedul
         _store(row, out, cache, cache_path)
 
 
-def _timing(seed, budget):
+def _timing(seed, budget, family=None):
     from fonbw.gap import diagnose
     from gap_truth import draw_scenario
 
-    sc = draw_scenario(seed, "single", scale=1.5)
+    sc = draw_scenario(seed, "single", scale=1.5, family=family)
     n = sum(len(r.u) for r in sc["train"] + sc["validate"])
     t0 = time.perf_counter()
     res = diagnose(sc["train"], sc["validate"], seed=0, budget=budget)
     wall = time.perf_counter() - t0
     print(f"{n} samples ({n * sc['train'][0].dt:.1f} s at {1 / sc['train'][0].dt:.0f} Hz), "
-          f"injected {list(sc['injected'])}, named {res['verdict']['effects']}: wall {wall:.0f} s "
+          f"{sc['family']} core, injected {list(sc['injected'])}, named {res['verdict']['effects']}: wall {wall:.0f} s "
           f"(nominal {res['timing']['nominal_s']:.0f} s, attribution {res['timing']['attribute_s']:.0f} s); "
           f"load average before/after: {os.getloadavg()[0]:.1f}")
 
@@ -319,10 +319,11 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, metavar="N",
                     help="worker processes of the embedded cluster (default: one per core)")
     ap.add_argument("--timing", action="store_true",
-                    help="time one diagnosis on ~30 s of 5 kHz data (scenario durations x1.5)")
+                    help="time one diagnosis on ~30 s of 5 kHz data (scenario durations x1.5; "
+                         "the core of the first --family, default a FONBW core)")
     ns = ap.parse_args(argv)
     if ns.timing:
-        _timing(ns.seed0, ns.budget)
+        _timing(ns.seed0, ns.budget, ns.family[0] if ns.family else None)
         return 0
     if ns.summary:
         print(summary(ns.summary))
