@@ -119,6 +119,23 @@ def test_robust_z_flags_the_odd_one():
     assert np.allclose(robust_z([1.0, 1.0, 1.0]), 0)
 
 
+def _pools():
+    import numba
+
+    return (numba.config.NUMBA_NUM_THREADS, os.environ.get("OPENBLAS_NUM_THREADS"),
+            os.environ.get("OMP_NUM_THREADS"))
+
+
+def test_embedded_cluster_workers_run_one_thread_of_each_pool(monkeypatch):
+    # two numba threads in each of two workers on two cores would contend
+    # (the suite's own setting, which the workers would inherit, is removed)
+    from fonbw.fleet.engine import connect
+
+    monkeypatch.delenv("NUMBA_NUM_THREADS", raising=False)
+    with connect(n_workers=1) as client:
+        assert list(client.run(_pools).values()) == [(1, "1", "1")]
+
+
 def test_summary_rows_of_failures_and_models():
     doc = {"kind": "fonbw", "params": {"ku": [1.0, 2.0], "kh": 3.0},
            "fit": {"records": ["a.csv"], "training_rms_um": 0.5, "warnings": []}}

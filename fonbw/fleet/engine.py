@@ -78,9 +78,13 @@ def connect(scheduler=None, n_workers: int | None = None):
     if n < 1:
         raise ValueError(f"n_workers must be ≥ 1, got {n_workers!r}")
     # one single-threaded process per core: the tasks are CPU-bound Python and
-    # numba, so threads in one process would contend for the GIL
+    # numba, so threads in one process would contend for the GIL. dask keeps
+    # the BLAS and OpenMP pools of its workers at one thread; numba's pool
+    # (the population kernel's) is set here, or every worker would run one
+    # thread per core as well
     with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+                      dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR,
+                      env={"NUMBA_NUM_THREADS": "1"}) as cluster, Client(cluster) as client:
         yield client
 
 
