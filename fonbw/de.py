@@ -328,12 +328,16 @@ patience, polish, polish_maxfev, polish_rtol, progress, callback, x0
                  polish_maxfev=None, polish_rtol=None, progress=False, callback=None,
                  x0=None):
         self.space = _Space(bounds, log_scale)
-        if polish_rtol is not None and not (polish_rtol > 0.0):
-            raise ValueError(f"polish_rtol must be > 0, got {polish_rtol!r}")
-        self.polish_rtol = polish_rtol
         (self.P, self.max_evals, self.polish_method, self.polish_budget,
          self.x0) = _check_options(self.space, popsize, max_evals, tol_stagnation,
                                    patience, polish, polish_maxfev, x0)
+        if polish_rtol is not None:
+            if not (polish_rtol > 0.0):
+                raise ValueError(f"polish_rtol must be > 0, got {polish_rtol!r}")
+            if self.polish_method != "L-BFGS-B":
+                raise ValueError(f"polish_rtol applies to the L-BFGS-B polish only, not to "
+                                 f"polish={polish!r}")
+        self.polish_rtol = polish_rtol
         self.de_budget = self.max_evals - self.polish_budget
         self.func_pop = func_pop
         self.tol_stagnation = tol_stagnation

@@ -215,6 +215,7 @@ def test_nelder_mead_polish_improves_over_no_polish():
     (dict(bounds=[(0, 1)], x0=[0.1, 0.2]), "x0"),
     (dict(bounds=[(0, 1)], polish="BFGS"), "polish"),
     (dict(bounds=[(0, 1)], polish_rtol=0.0), "polish_rtol"),
+    (dict(bounds=[(0, 1)], polish="Nelder-Mead", polish_rtol=1e-9), "L-BFGS-B polish only"),
 ])
 def test_validation_errors(bad, match):
     kw = dict(bad)

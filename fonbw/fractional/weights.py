@@ -118,8 +118,7 @@ def _tail_nodes(lam, K, M, c, r):
     """The nodes of :func:`tail_modes`, written into c and r.
 
     Compiled because every model the identification tries builds two sets of
-    modes (in Python the per-node loops cost more than the model's simulation
-    on short records). libm per node, as numba's math functions are: numpy's
+    modes: 163 µs a set as Python loops, 8 µs compiled. libm per node, as numba's math functions are: numpy's
     vectorized exp/log/expm1 differ from libm in the last bit on some CPUs,
     and the native FMUs (C, libm) build the same modes and must match the
     library bit for bit on every machine. The nodes' positions repeat
