@@ -242,7 +242,7 @@ def jde_minimize(func_pop: Callable[[np.ndarray], np.ndarray],
 
 
 def _check_options(space, popsize, max_evals, tol_stagnation, patience, polish,
-                   polish_maxfev, x0):
+                   polish_maxfev, x0, polish_rtol=None):
     """Validated (P, max_evals, polish_method, polish_budget, x0) of a run."""
     d = space.d
     if int(max_evals) != max_evals or max_evals < 1:
@@ -281,6 +281,12 @@ def _check_options(space, popsize, max_evals, tol_stagnation, patience, polish,
         raise ValueError(
             f"max_evals={max_evals} leaves {de_budget} evaluations for DE after the "
             f"polish budget ({polish_budget}); need at least one population ({P})")
+    if polish_rtol is not None:
+        if not (polish_rtol > 0.0):
+            raise ValueError(f"polish_rtol must be > 0, got {polish_rtol!r}")
+        if polish_method != "L-BFGS-B":
+            raise ValueError(f"polish_rtol applies to the L-BFGS-B polish only, not to "
+                             f"polish={polish!r}")
     if x0 is not None:
         x0 = np.asarray(x0, dtype=float).reshape(-1)
         if x0.shape[0] != d or not np.all(np.isfinite(x0)):
@@ -330,13 +336,7 @@ patience, polish, polish_maxfev, polish_rtol, progress, callback, x0
         self.space = _Space(bounds, log_scale)
         (self.P, self.max_evals, self.polish_method, self.polish_budget,
          self.x0) = _check_options(self.space, popsize, max_evals, tol_stagnation,
-                                   patience, polish, polish_maxfev, x0)
-        if polish_rtol is not None:
-            if not (polish_rtol > 0.0):
-                raise ValueError(f"polish_rtol must be > 0, got {polish_rtol!r}")
-            if self.polish_method != "L-BFGS-B":
-                raise ValueError(f"polish_rtol applies to the L-BFGS-B polish only, not to "
-                                 f"polish={polish!r}")
+                                   patience, polish, polish_maxfev, x0, polish_rtol)
         self.polish_rtol = polish_rtol
         self.de_budget = self.max_evals - self.polish_budget
         self.func_pop = func_pop
