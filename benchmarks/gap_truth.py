@@ -298,11 +298,11 @@ def _core_params(core):
     return "fonbw", {k: (list(map(float, np.atleast_1d(v))) if k == "ku" else v) for k, v in p.items()}
 
 
-def fixed_case(seed, effects, scale=1.0, kind="null"):
-    """A fixed case for tests: scenario `seed`'s truth with `effects` instead of
-    the drawn ones, on the default experiments; returns (truth, training
-    records, validation records)."""
-    truth = draw_scenario(seed, kind, scale=scale)["truth"]
+def fixed_case(seed, effects, scale=1.0, kind="null", family=None):
+    """A fixed case for tests: scenario `seed`'s truth (core of `family`, as in
+    :func:`draw_scenario`) with `effects` instead of the drawn ones, on the
+    default experiments; returns (truth, training records, validation records)."""
+    truth = draw_scenario(seed, kind, scale=scale, family=family)["truth"]
     truth.effects = effects
     tr_in, va_in = default_experiments(scale=scale)
     return (truth, [truth.record(u, n, i) for i, (n, u) in enumerate(tr_in)],

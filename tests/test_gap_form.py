@@ -253,19 +253,17 @@ FAST = dict(budget=500, global_evals=160, refit_evals=45)
 
 
 def _family_case(seed, family, effects=None, mid_drive=0.0):
-    sc = tr.draw_scenario(seed, "null", scale=0.5, family=family, mid_drive=mid_drive)
     if effects:
-        truth = sc["truth"]
-        truth.effects = effects
-        tr_in, va_in = tr.default_experiments(scale=0.5)
-        sc["train"] = [truth.record(u, n, i) for i, (n, u) in enumerate(tr_in)]
-        sc["validate"] = [truth.record(u, n, 50 + i) for i, (n, u) in enumerate(va_in)]
-    return sc, diagnose(sc["train"], sc["validate"], seed=1, **FAST).to_dict()
+        _, train, val = tr.fixed_case(seed, effects, scale=0.5, family=family)
+    else:
+        sc = tr.draw_scenario(seed, "null", scale=0.5, family=family, mid_drive=mid_drive)
+        train, val = sc["train"], sc["validate"]
+    return diagnose(train, val, seed=1, **FAST).to_dict()
 
 
 @pytest.mark.slow
 def test_preisach_core_null_names_the_form_and_no_effect():
-    _, d = _family_case(21, "preisach")
+    d = _family_case(21, "preisach")
     v = d["verdict"]
     assert v["form"]["material"] and v["effects"] == []
     assert v["form"]["gap_closed"] > 0.7 and v["gap_closed"] > 0.7
@@ -277,7 +275,7 @@ def test_preisach_core_null_names_the_form_and_no_effect():
 
 @pytest.mark.slow
 def test_pi_core_null_names_the_form_and_no_effect():
-    _, d = _family_case(23, "pi")
+    d = _family_case(23, "pi")
     v = d["verdict"]
     assert v["form"]["material"] and v["effects"] == []
     assert v["gap_closed"] == pytest.approx(v["form"]["gap_closed"]) and v["gap_closed"] > 0.85
@@ -287,7 +285,7 @@ def test_pi_core_null_names_the_form_and_no_effect():
 def test_fonbw_core_starting_mid_drive_names_nothing():
     # with the backward burn-in as every record's history, the nominal kept part
     # of the start-up transient and creep closed it
-    _, d = _family_case(21, "fonbw", mid_drive=1.0)
+    d = _family_case(21, "fonbw", mid_drive=1.0)
     v = d["verdict"]
     assert v["start"]["mid_drive"]
     assert any(s["burn_in"] > 0 and not s["at_rest"] for s in d["records"]["start"]["train"])
@@ -297,7 +295,7 @@ def test_fonbw_core_starting_mid_drive_names_nothing():
 
 @pytest.mark.slow
 def test_pi_core_with_creep_names_the_form_and_creep():
-    _, d = _family_case(22, "pi", effects={"creep": {"gamma": 0.03}})
+    d = _family_case(22, "pi", effects={"creep": {"gamma": 0.03}})
     v = d["verdict"]
     assert v["form"]["material"] and v["effects"] == ["creep"]
     assert v["form"]["gap_closed"] > 0.9 and v["gap_closed"] > 0.95
