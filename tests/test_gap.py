@@ -120,6 +120,39 @@ def test_saturation_shape_slope_is_its_derivative():
     assert df[0] < 1e-6 and df[-1] > 1 - 1e-6  # off below the knee, full slope above it
 
 
+def test_knee_kernels_equal_their_numpy_forms():
+    # the compiled softplus, residual and normal equations of the saturation
+    # block against the same quantities written with numpy: far below the
+    # knee (log1p skipped, then exp underflowing), at it, far above it
+    from fonbw.gap import knee
+
+    rng = np.random.default_rng(11)
+    th = (16.0, 0.02)
+    n = 5000
+    B = np.asfortranarray(np.column_stack([rng.uniform(0.0, 1.0, n), rng.normal(size=n), np.ones(n)]))
+    b = np.array([20.0, 0.3, -1.0, -0.6])
+    z = B @ b[:-1]
+    zs = z.copy()
+    zs[:4] = [th[0] - 40.0, th[0], th[0] + 1e-3, th[0] + 30.0]  # s = −2000, 0, 0.05, 1500
+    s = (zs - th[0]) / th[1]
+    f, df = knee.softplus(zs, *th)
+    np.testing.assert_allclose(f, th[1] * np.logaddexp(0.0, s), rtol=1e-15, atol=0.0)
+    np.testing.assert_allclose(df, 0.5 * (1.0 + np.tanh(0.5 * s)), rtol=0.0, atol=1e-15)
+    assert f[0] == 0.0 and f[1] == pytest.approx(th[1] * math.log(2.0), rel=1e-15)
+    assert f[3] == pytest.approx(30.0, rel=1e-15) and df[3] == 1.0
+
+    y = z + rng.normal(0.0, 0.01, n)
+    r, f, df = np.empty(n), np.empty(n), np.empty(n)
+    sse = knee.residual(B, b, y, *th, r, f, df)
+    np.testing.assert_allclose(r, y - (z + b[-1] * th[1] * np.logaddexp(0.0, (z - th[0]) / th[1])),
+                               rtol=0.0, atol=1e-12)
+    assert sse == pytest.approx(float(r @ r), rel=1e-12)
+    G, g = knee.normal_equations(B, b[-1], df, f, r)
+    J = np.column_stack([B * (1.0 + b[-1] * df)[:, None], f])
+    np.testing.assert_allclose(G, J.T @ J, rtol=1e-12)
+    np.testing.assert_allclose(g, J.T @ r, rtol=1e-10, atol=1e-12 * float(np.abs(J).sum()))
+
+
 def test_output_saturation_fit_equals_scipy_least_squares():
     # y = z + c f(z), z = B b: the Gauss-Newton solve of the fitter against
     # scipy's trust-region least squares on the same nonlinear problem

@@ -35,6 +35,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from .. import plant as _plant
+from . import knee
 from .blas import single_thread
 from .filters import first_order
 
@@ -71,7 +72,8 @@ class Effect:
         True for a static nonlinearity on the model's own output,
         y = z + c·f(z) with z everything else the model puts out: its
         regressor ``f(z)`` depends on the linear parameters, which the
-        fitter then solves by Gauss-Newton (:meth:`shape` gives f and f').
+        fitter then solves by Gauss-Newton (:meth:`shape` gives f and f',
+        ``residual`` the residual with both in one pass).
     compressive : bool
         For an output nonlinearity: its gain c is bounded above by 0 (it may
         only lower the output's slope).
@@ -358,9 +360,13 @@ class Saturation(Effect):
     @staticmethod
     def shape(z, th):
         """f(z) = w softplus((z − y_k)/w) [µm] and its slope f'(z) [-]."""
-        w = float(th[1])
-        s = (np.asarray(z, dtype=float) - float(th[0])) / w
-        return w * np.logaddexp(0.0, s), 0.5 * (1.0 + np.tanh(0.5 * s))
+        return knee.softplus(z, th[0], th[1])
+
+    @staticmethod
+    def residual(B, b, y, th, r, f, df):
+        """y − (z + c f(z)), z = B b[:-1], c = b[-1], into `r`, with f(z) and
+        f'(z) into `f` and `df` (contiguous, like `y`); returns its sum of squares."""
+        return knee.residual(B, b, y, th[0], th[1], r, f, df)
 
     def columns(self, ctx, th):
         return self.shape(ctx["y_ref"], th)[0][:, None]

@@ -21,6 +21,7 @@ from .. import hysteresis as hyst
 from ..de import jde_minimize
 from ..io import Record
 from ..io import decimate as io_decimate
+from . import knee
 from .cores import FonbwCore
 
 __all__ = ["KIND", "Fitter", "simulate_rows", "x_from_model", "decimate", "nominal_search"]
@@ -315,25 +316,22 @@ class Fitter:
         if outer is None or b is None:
             return b, r
         e, th = outer
-        B = A[:, :-1]
+        # column-major, so that each entry of the normal equations is one
+        # pass over two contiguous columns (fonbw.gap.knee)
+        B = np.asfortranarray(A[:, :-1])
+        y = np.ascontiguousarray(y, dtype=float)
         b = b.copy()
-
-        def resid(b):
-            f, df = e.shape(B @ b[:-1], th)
-            return y - (B @ b[:-1] + b[-1] * f), f, df
-
-        r, f, df = resid(b)
-        sse = float(r @ r)
+        r, f, df = np.empty_like(y), np.empty_like(y), np.empty_like(y)
+        rn, fn, dfn = np.empty_like(y), np.empty_like(y), np.empty_like(y)
+        sse = e.residual(B, b, y, th, r, f, df)
         for _ in range(iters):
-            J = np.column_stack([B * (1.0 + b[-1] * df)[:, None], f])
-            step, _ = cls.solve(J, r)
+            step = cls._gn_step(*knee.normal_equations(B, b[-1], df, f, r))
             if step is None:
                 break
             lam, better = 1.0, False
             for _ in range(6):
                 bn = b + lam * step
-                rn, fn, dfn = resid(bn)
-                sn = float(rn @ rn)
+                sn = e.residual(B, bn, y, th, rn, fn, dfn)
                 if sn < sse:
                     better = True
                     break
@@ -341,7 +339,8 @@ class Fitter:
             if not better:
                 break
             gain = (sse - sn) / max(sse, 1e-300)
-            b, r, f, df, sse = bn, rn, fn, dfn, sn
+            b, sse = bn, sn
+            r, f, df, rn, fn, dfn = rn, fn, dfn, r, f, df
             if gain < 1e-9:
                 break
         if e.compressive and b[-1] > 0.0:
@@ -349,6 +348,24 @@ class Fitter:
             b0, r0 = cls.solve(B, y)
             return (None, None) if b0 is None else (np.r_[b0, 0.0], r0)
         return b, r
+
+    @staticmethod
+    def _gn_step(G, g):
+        """Gauss-Newton step from the normal equations G x = g, on unit-norm
+        columns as in :meth:`solve`; None for non-finite columns."""
+        s = np.sqrt(np.diag(G))
+        if not np.all(np.isfinite(s)):
+            return None
+        on = s > 1e-10 * max(float(s.max()), 1e-300)
+        so = s[on]
+        Gs, gs = G[np.ix_(on, on)] / np.outer(so, so), g[on] / so
+        try:
+            xs = np.linalg.solve(Gs, gs)
+        except np.linalg.LinAlgError:
+            xs = np.linalg.lstsq(Gs, gs, rcond=None)[0]
+        x = np.zeros(len(g))
+        x[on] = xs / so
+        return x
 
     @staticmethod
     def output(A, b, outer=None):

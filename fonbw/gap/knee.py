@@ -1,0 +1,134 @@
+"""Compiled arithmetic of the stroke-saturation block: its softplus knee and
+the Gauss-Newton fit that the block's output nonlinearity needs.
+
+The saturation block (:class:`fonbw.gap.effects.Saturation`) bends the
+model's own output, y = z + c f(z) with z = B b, so every evaluation of a
+candidate with it solves a small nonlinear least-squares problem by
+Gauss-Newton (:meth:`fonbw.gap.fitter.Fitter.fit_linear`). Written with numpy
+that solve took three quarters of such a candidate's time: each step built
+the Jacobian column by column and evaluated two transcendental functions
+(``logaddexp`` and ``tanh``) over every sample in separate passes. Here one
+pass gives the residual, f and f' (one ``exp`` and one ``log1p`` a sample:
+the slope 1/(1 + e^−s) shares the exponential of the softplus) and one pass
+per pair of columns gives the normal equations, without a Jacobian in
+memory.
+"""
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+__all__ = ["softplus", "residual", "normal_equations"]
+
+# Below 2^−54 (|s| > 37.4) the correction log1p(e) − e ≈ −e²/2 is under half
+# an ulp of e, so log1p would return e itself: the call is skipped there.
+_TINY = 2.0 ** -54
+# Samples per block of the normal equations (a few columns of 8 kB each).
+_BLOCK = 1024
+
+
+@nb.njit(cache=True)
+def _knee(s):
+    """(softplus(s), d softplus/ds) of one sample, from one exponential."""
+    e = math.exp(-abs(s))
+    l1 = e if e < _TINY else math.log1p(e)
+    if s >= 0.0:
+        return s + l1, 1.0 / (1.0 + e)
+    return l1, e / (1.0 + e)
+
+
+@nb.njit(cache=True)
+def _softplus(z, knee, w, f, df):
+    for i in range(z.size):
+        a, d = _knee((z[i] - knee) / w)
+        f[i] = w * a
+        df[i] = d
+
+
+def softplus(z, knee, w):
+    """f(z) = w softplus((z − knee)/w) and its slope f'(z), both like `z`.
+
+    Parameters
+    ----------
+    z : array_like
+        Displacement [µm].
+    knee, w : float
+        Knee y_k and corner width [µm], w > 0.
+    """
+    z = np.ascontiguousarray(z, dtype=float)
+    f, df = np.empty_like(z), np.empty_like(z)
+    _softplus(z.reshape(-1), float(knee), float(w), f.reshape(-1), df.reshape(-1))
+    return f, df
+
+
+@nb.njit(cache=True)
+def _residual(B, b, y, knee, w, r, f, df):
+    n, q = B.shape
+    c = b[q]
+    sse = 0.0
+    for i in range(n):
+        z = 0.0
+        for j in range(q):
+            z += B[i, j] * b[j]
+        a, d = _knee((z - knee) / w)
+        f[i] = w * a
+        df[i] = d
+        ri = y[i] - (z + c * f[i])
+        r[i] = ri
+        sse += ri * ri
+    return sse
+
+
+def residual(B, b, y, knee, w, r, f, df):
+    """Residual of y ≈ z + c f(z), z = B b[:-1], c = b[-1], into `r` (with f and
+    f' into `f`, `df`); returns the sum of its squares [µm²]."""
+    return _residual(B, b, y, float(knee), float(w), r, f, df)
+
+
+# Each entry is a dot product over the samples, taken a block of samples at
+# a time so that the block's columns stay in cache across the entries.
+# Letting LLVM reorder the sums vectorizes them (the step of a Gauss-Newton
+# iteration does not hang on the last bits of a sum over 1e5 samples).
+@nb.njit(cache=True, fastmath={"reassoc", "contract"})
+def _normal(B, c, df, f, r, G, g):
+    n, q = B.shape
+    G[:, :] = 0.0
+    g[:] = 0.0
+    a = np.empty(_BLOCK)
+    for i0 in range(0, n, _BLOCK):
+        m = min(_BLOCK, n - i0)
+        for i in range(m):
+            a[i] = 1.0 + c * df[i0 + i]
+        for j in range(q):
+            bj = B[i0:i0 + m, j]
+            for k in range(j + 1):
+                bk = B[i0:i0 + m, k]
+                acc = 0.0
+                for i in range(m):
+                    acc += bj[i] * bk[i] * a[i] * a[i]
+                G[j, k] += acc
+            acc, acr = 0.0, 0.0
+            for i in range(m):
+                acc += bj[i] * a[i] * f[i0 + i]
+                acr += bj[i] * a[i] * r[i0 + i]
+            G[q, j] += acc
+            g[j] += acr
+        acc, acr = 0.0, 0.0
+        for i in range(m):
+            acc += f[i0 + i] * f[i0 + i]
+            acr += f[i0 + i] * r[i0 + i]
+        G[q, q] += acc
+        g[q] += acr
+    for j in range(q + 1):
+        for k in range(j):
+            G[k, j] = G[j, k]
+
+
+def normal_equations(B, c, df, f, r):
+    """JᵀJ and Jᵀr of the Gauss-Newton Jacobian J = [(1 + c f') B, f] (q + 1 columns)."""
+    q = B.shape[1]
+    G, g = np.empty((q + 1, q + 1)), np.empty(q + 1)
+    _normal(B, float(c), df, f, r, G, g)
+    return G, g
