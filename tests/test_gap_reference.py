@@ -74,6 +74,28 @@ def test_layout_bounds_and_names():
     assert Phi.shape == (int(FS), ref.n_columns) and Phi.flags.c_contiguous
 
 
+@pytest.mark.parametrize("kw, theta", [
+    (dict(level=0), ()),
+    (dict(level=1, initial="descended"), ()),
+    (dict(level=2, rate="both", initial="burn-in", offset=False), (1e-4, 0.3)),
+    (dict(level=6, degree=5, rate="viscous", relax=(0.002, 0.02), initial="ascended"), (1e-5, 2e-4, 0.4)),
+])
+def test_kept_columns_are_those_of_the_whole_matrix(kw, theta):
+    # the refits ask for the active columns only: the same numbers, bit for
+    # bit, as those columns of the whole Φ, whichever are kept
+    ref = ReferenceHysteresis(n_plays=8, u_range=(0.0, 120.0), **kw)
+    u = eq19_input(FS, 2.0)[1]
+    Phi = ref.columns(u, DT, theta)
+    rng = np.random.default_rng(4)
+    for keep in (rng.random(ref.n_columns) < 0.3, np.arange(ref.n_columns) >= ref.n_play_columns - 1,
+                 np.zeros(ref.n_columns, dtype=bool)):
+        got = ref.columns(u, DT, theta, keep=keep)
+        assert got.shape == (u.size, int(keep.sum()))
+        np.testing.assert_array_equal(got, Phi[:, keep])
+    with pytest.raises(ValueError, match="flags"):
+        ref.columns(u, DT, theta, keep=np.ones(3, dtype=bool))
+
+
 def test_relaxation_column_is_the_lag_of_a_step_in_closed_form():
     # x steps from -1 to x1 at sample 1: the lag is x1 - (x1 + 1) a^k, a = e^(-dt/tau)
     tau = 0.005

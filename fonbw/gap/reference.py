@@ -203,7 +203,7 @@ def _filtered_rate(u, dt, tau):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _level_columns(out, m, k, lo, width):  # pragma: no cover - compiled
+def _level_columns(pz, m, k, lo, width, col, dst):  # pragma: no cover - compiled
     # Relays on the Preisach line α - β = 2 r_j, their density along it a
     # Bernstein polynomial of degree k in the normalized relay centre ξ:
     # relays below the play state z are up, so the line's output is the
@@ -212,41 +212,46 @@ def _level_columns(out, m, k, lo, width):  # pragma: no cover - compiled
     # weights give a density ≥ 0 over the input range. Rate-independent plays
     # stay within ξ ∈ [-0.5, 1.5]; clamping there keeps widened thresholds
     # (rate dependence) from extrapolating the cubic far outside.
+    # Column i m + j (basis i, play j) goes to dst[:, col[i m + j]], or
+    # nowhere when that is negative; pz (the play states) may be dst's own
+    # first m columns, as each is read before column j is written.
     binom = np.ones(k + 2)
     for l in range(1, k + 2):
         binom[l] = binom[l - 1] * (k + 2 - l) / l
     xp = np.ones(k + 2)
     ep = np.ones(k + 2)
+    v = np.empty(k + 1)
     g = width / (k + 1)
-    if k <= 2:
-        # the common degrees in closed form: the general loop below costs
-        # several times more than the play bank itself
-        for t in range(out.shape[0]):
-            for j in range(m):
-                xi = min(max((out[t, j] - lo) / width, -0.5), 1.5)
-                eta = 1.0 - xi
-                if k == 1:
-                    top = xi * xi
-                    out[t, m + j] = g * top
-                    out[t, j] = g * (top + 2.0 * xi * eta)
-                else:
-                    top = xi * xi * xi
-                    mid = top + 3.0 * xi * xi * eta
-                    out[t, 2 * m + j] = g * top
-                    out[t, m + j] = g * mid
-                    out[t, j] = g * (mid + 3.0 * xi * eta * eta)
-        return
-    for t in range(out.shape[0]):
+    for t in range(pz.shape[0]):
         for j in range(m):
-            xi = min(max((out[t, j] - lo) / width, -0.5), 1.5)
+            xi = min(max((pz[t, j] - lo) / width, -0.5), 1.5)
             eta = 1.0 - xi
-            for l in range(1, k + 2):  # products, not pow: pow dominated the cost
-                xp[l] = xp[l - 1] * xi
-                ep[l] = ep[l - 1] * eta
-            acc = 0.0
-            for i in range(k, -1, -1):
-                acc += binom[i + 1] * xp[i + 1] * ep[k - i]
-                out[t, i * m + j] = acc * g
+            # the common degrees in closed form: the general loop costs
+            # several times more than the play bank itself
+            if k == 0:
+                v[0] = pz[t, j]  # the classical PI model: the play itself
+            elif k == 1:
+                top = xi * xi
+                v[1] = g * top
+                v[0] = g * (top + 2.0 * xi * eta)
+            elif k == 2:
+                top = xi * xi * xi
+                mid = top + 3.0 * xi * xi * eta
+                v[2] = g * top
+                v[1] = g * mid
+                v[0] = g * (mid + 3.0 * xi * eta * eta)
+            else:
+                for l in range(1, k + 2):  # products, not pow: pow dominated the cost
+                    xp[l] = xp[l - 1] * xi
+                    ep[l] = ep[l - 1] * eta
+                acc = 0.0
+                for i in range(k, -1, -1):
+                    acc += binom[i + 1] * xp[i + 1] * ep[k - i]
+                    v[i] = acc * g
+            for i in range(k + 1):
+                c = col[i * m + j]
+                if c >= 0:
+                    dst[t, c] = v[i]
 
 
 def play_bank(v, thresholds, z0=None, scale=None) -> np.ndarray:
@@ -424,7 +429,7 @@ class ReferenceHysteresis:
 
     # -- regressors ---------------------------------------------------------
 
-    def columns(self, u, dt: float, theta=()) -> np.ndarray:
+    def columns(self, u, dt: float, theta=(), keep=None) -> np.ndarray:
         """Regressor matrix Φ, shape (n_samples, :attr:`n_columns`).
 
         Parameters
@@ -435,6 +440,9 @@ class ReferenceHysteresis:
             Sampling period [s].
         theta : sequence of float
             Nonlinear parameters (:attr:`theta_names`); empty for ``rate=None``.
+        keep : array_like of bool, optional
+            Only these columns, in their order (the same numbers as those
+            columns of the whole Φ, at a fraction of its memory traffic).
         """
         u = _input(u)
         theta = tuple(float(t) for t in theta)
@@ -454,22 +462,35 @@ class ReferenceHysteresis:
         lo, hi = self._range()
         x = (u - 0.5 * (lo + hi)) / (0.5 * (hi - lo))
         m, q = self.n_plays, self.n_play_columns
-        out = np.empty((u.size, self.n_columns))
+        # where each column goes: all of them in order, or the kept ones packed
+        col = np.arange(self.n_columns)
+        if keep is not None:
+            keep = np.asarray(keep, dtype=bool)
+            if keep.shape != (self.n_columns,):
+                raise ValueError(f"keep needs {self.n_columns} flags, got shape {keep.shape}")
+            col = np.where(keep, np.cumsum(keep) - 1, -1)
+        out = np.empty((u.size, int(col.max()) + 1))
         scale, add = self._scale(u, dt, theta)
-        _play_kernel(u, r, scale, add, z, out[:, :m])
-        if self.level:
-            _level_columns(out, m, self.level, lo, hi - lo)
+        if keep is None:
+            pz = out[:, :m]  # the states, overwritten by the level columns
+        else:
+            pz = np.empty((u.size, m))
+        _play_kernel(u, r, scale, add, z, pz)
+        if self.level or keep is not None:
+            _level_columns(pz, m, self.level, lo, hi - lo, col[:q], out)
         first = 0 if self.offset else 1
         for i in range(first, self.degree + 1):
-            out[:, q + i - first] = x ** i
-        if "mu" in self.theta_names:
+            if col[q + i - first] >= 0:
+                out[:, col[q + i - first]] = x ** i
+        if "mu" in self.theta_names and col[q + self.degree + 1 - first] >= 0:
             # measured from the first sample, so that a record starting away
             # from 0 V does not see a step at t = 0
-            out[:, q + self.degree + 1 - first] = apply_op(make_op(theta[-1], dt, "fast"), u - u[0])
+            out[:, col[q + self.degree + 1 - first]] = apply_op(make_op(theta[-1], dt, "fast"), u - u[0])
         for j, tau in enumerate(self.relax):
-            # lag − input: ≤ 0 on a rise, so a weight ≥ 0 takes stroke off fast moves
-            a = math.exp(-dt / tau)
-            out[:, self.n_columns - len(self.relax) + j] = first_order(x, a) - x
+            c = col[self.n_columns - len(self.relax) + j]
+            if c >= 0:
+                # lag − input: ≤ 0 on a rise, so a weight ≥ 0 takes stroke off fast moves
+                out[:, c] = first_order(x, math.exp(-dt / tau)) - x
         return out[u.size - n:]
 
     def _scale(self, u, dt, theta):
