@@ -525,6 +525,33 @@ def test_html_report_is_self_contained(dynamics_case):
     assert "src=\"http" not in page and "<script" not in page
 
 
+def test_global_search_budgets(monkeypatch):
+    # every candidate's global search gets GLOBAL_SHARE of the budget, a new
+    # output nonlinearity (the saturation block's knee) all of it; an explicit
+    # global_evals is what every candidate gets
+    from fonbw.gap import attribute
+    from fonbw.gap.fitter import Fitter
+
+    seen = []
+    refit = Fitter.refit
+
+    def spy(self, effects, *a, **k):
+        if k.get("local") is False:
+            seen.append((effects[-1].name, k["evals"]))
+        return refit(self, effects, *a, **k)
+
+    monkeypatch.setattr(Fitter, "refit", spy)
+    _, train, val = tr.fixed_case(12, {}, scale=0.25)
+    diagnose(train, val, seed=0, budget=80, refit_evals=10, effects=("saturation", "delay"),
+             max_effects=1, workers=1)
+    assert attribute.GLOBAL_SHARE == 0.6
+    assert sorted(seen) == [("delay", 48), ("saturation", 80)]
+    seen.clear()
+    diagnose(train, val, seed=0, budget=80, global_evals=30, refit_evals=10, effects=("saturation", "delay"),
+             max_effects=1, workers=1)
+    assert sorted(seen) == [("delay", 30), ("saturation", 30)]
+
+
 def test_blind_null_names_nothing():
     sc = tr.draw_scenario(7, "null", scale=0.5)
     res = diagnose(sc["train"], sc["validate"], seed=1, **FAST)
