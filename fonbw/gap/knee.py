@@ -9,9 +9,9 @@ that solve took three quarters of such a candidate's time: each step built
 the Jacobian column by column and evaluated two transcendental functions
 (``logaddexp`` and ``tanh``) over every sample in separate passes. Here one
 pass gives the residual, f and f' (one ``exp`` and one ``log1p`` a sample:
-the slope 1/(1 + e^−s) shares the exponential of the softplus) and one pass
-per pair of columns gives the normal equations, without a Jacobian in
-memory.
+the slope 1/(1 + e^−s) shares the exponential of the softplus) and the
+normal equations are summed a block of samples at a time, without a
+Jacobian in memory.
 """
 from __future__ import annotations
 
