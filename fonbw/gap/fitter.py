@@ -248,6 +248,13 @@ class Fitter:
     # -- costs ------------------------------------------------------------
 
     @staticmethod
+    def _excited(s):
+        """The columns of norms `s` that the fit solves for: a regressor these
+        samples do not excite (a saturation knee above every displacement of
+        a subset) gets coefficient 0, not 1/ε."""
+        return s > 1e-10 * max(float(s.max()), 1e-300)
+
+    @staticmethod
     def solve(A, y):
         """Least-squares coefficients and residual; non-finite columns -> (None, None).
 
@@ -262,9 +269,7 @@ class Fitter:
         # needs the look at every entry
         if not np.all(np.isfinite(s)) and not np.all(np.isfinite(A)):
             return None, None
-        # a regressor these samples do not excite (a saturation knee above
-        # every displacement of a subset) gets coefficient 0, not 1/ε
-        on = s > 1e-10 * max(float(s.max()), 1e-300)
+        on = Fitter._excited(s)
         # A[:, on] is a Fortran-ordered copy (whatever the order of A), and
         # a slow one: with every column on, the same array by one division
         As = np.divide(A, s, order="F") if on.all() else A[:, on] / s[on]
@@ -356,7 +361,7 @@ class Fitter:
         s = np.sqrt(np.diag(G))
         if not np.all(np.isfinite(s)):
             return None
-        on = s > 1e-10 * max(float(s.max()), 1e-300)
+        on = Fitter._excited(s)
         so = s[on]
         Gs, gs = G[np.ix_(on, on)] / np.outer(so, so), g[on] / so
         try:
