@@ -675,3 +675,24 @@ def test_a_nominal_of_its_own_that_diverges_is_refit_bounded():
     # and it still fits the loop: training RMS 0.22 µm, under 2 % of the output span
     span = max(float(np.ptp(r.y)) for r in sc["train"])
     assert d.base["rms"] < 0.02 * span
+
+
+def test_a_candidate_that_diverges_on_validation_is_listed_without_a_gap():
+    # a refit whose validation error is not finite has no gap closed (None in its
+    # checks); the first step still lists it, and the JSON carries null
+    from types import SimpleNamespace
+
+    from fonbw.gap.attribute import Diagnosis
+
+    lib = [SimpleNamespace(name="clip"), SimpleNamespace(name="creep")]
+    fitter = SimpleNamespace(effect_params=lambda fit, eff: {e.name: {"level": 1.0} for e in eff})
+    me = SimpleNamespace(lib=lib, candidates=[], att={"fitter": fitter})
+    results = [{"i": 0, "fit": {}, "mse": math.inf, "eff": [lib[0]],
+                "checks": {"gap_closed_step": None, "passed": False}},
+               {"i": 1, "fit": {}, "mse": 0.04, "eff": [lib[1]],
+                "checks": {"gap_closed_step": 0.37, "passed": True}}]
+    Diagnosis._first_step_candidates(me, results)
+    clip, creep = me.candidates
+    assert clip["effect"] == "clip" and clip["gap_closed"] is None and clip["rms_validate"] is None
+    assert creep["gap_closed"] == 0.37 and creep["rms_validate"] == pytest.approx(0.2)
+    json.dumps(me.candidates, allow_nan=False)

@@ -474,11 +474,12 @@ class Diagnosis:
     def _first_step_candidates(self, results):
         """The ``candidates`` entries of the first greedy step (every effect alone)."""
         for r in results:
-            gcj = float(r["checks"]["gap_closed_step"])
+            # None: the candidate's validation error is not finite (its fit diverges there)
+            gcj = r["checks"]["gap_closed_step"]
             name = self.lib[r["i"]].name
             self.candidates.append({
                 "effect": name,
-                "gap_closed": gcj if math.isfinite(gcj) else None,
+                "gap_closed": gcj,
                 "rms_validate": math.sqrt(r["mse"]) if math.isfinite(r["mse"]) else None,
                 "accepted": False,
                 "params": self.att["fitter"].effect_params(r["fit"], r["eff"])[name],
