@@ -322,13 +322,14 @@ def _after_estimated_history(model, rec, burn_in, rest=0.0) -> tuple:
     explains its burn-in up to a constant sensor offset, and what that history
     is: a drive cut mid-slope arrives moving, in a state its last extremes
     set, which a lead-in from rest straight to the first input does not give."""
+    from .invertibility import model_u_range
     from .start import estimate_history
 
     def sim(v):
         return model.simulate(v, rec.dt)
 
     b = int(burn_in)
-    pre, how, var = estimate_history(sim, rec.u, rec.y, b, offset=True, rest=rest)
+    pre, how, var = estimate_history(sim, rec.u, rec.y, b, offset=True, rest=rest, stage=model_u_range(model))
     lead = lead_in(rec.u, rec.dt)
     with np.errstate(all="ignore"):
         y_lead = sim(np.concatenate([lead, rec.u[:b]]))[lead.size:]

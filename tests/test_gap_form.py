@@ -527,6 +527,57 @@ def test_history_of_a_sine_cut_mid_slope_is_estimated_from_its_burn_in(table1, c
     assert scored(h) < 0.1 * scored(backward)
 
 
+@pytest.mark.parametrize("cut_s", [3.5, 5.0])
+def test_history_of_a_decaying_drive_reaches_beyond_the_record(table1, cut_s):
+    # eq. 19's swings decay: cut at 3.5 s (5.0 s) the record spans 0-67 V (0-50 V)
+    # while the drive before it reached 120 V. Only a history that sweeps the
+    # stage's range first gives the fractional memory that drive's trace
+    from fonbw.signals import eq19_input
+    from fonbw.start import estimate_history
+
+    dt = 2e-4
+    u = eq19_input(1.0 / dt, 8.0)[1]
+    y = table1.simulate(u, dt)
+    i = int(round(cut_s / dt))
+    rec = _rec(u[i:], y[i:], dt)
+    b = start_state(rec).burn_in
+    assert b > 0 and rec.u.max() < 70.0
+
+    def scored(h):
+        p = table1.simulate(np.concatenate([h, rec.u]), dt)[h.size:]
+        return float(np.sqrt(np.mean((rec.y[b:] - p[b:]) ** 2)))
+
+    sim = lambda v: table1.simulate(v, dt)  # noqa: E731
+    h0, _, _ = estimate_history(sim, rec.u, rec.y, b)
+    h1, text, _ = estimate_history(sim, rec.u, rec.y, b, stage=(0.0, 120.0))
+    assert text.startswith("from rest through 120 V and 0 V")
+    # measured: 0.0045 / 0.019 µm against 0.10 / 0.24 µm within the record's range (span 15.5 µm)
+    assert scored(h1) < 0.0015 * np.ptp(y)
+    assert scored(h1) < 0.1 * scored(h0)
+
+
+def test_validate_takes_the_stage_range_from_the_models_training_range(table1):
+    # `fonbw validate` on eq. 19 cut at 3.5 s: the model's recorded training
+    # range (0-120 V) lets the estimated history sweep beyond the record's
+    import copy
+
+    from fonbw.objective import score
+    from fonbw.signals import eq19_input
+
+    dt = 2e-4
+    u = eq19_input(1.0 / dt, 8.0)[1]
+    y = table1.simulate(u, dt)
+    i = int(round(3.5 / dt))
+    rec = _rec(u[i:], y[i:], dt)
+    b = start_state(rec).burn_in
+    trained = copy.deepcopy(table1)
+    trained.meta = {**(getattr(table1, "meta", None) or {}), "u_range": [0.0, 120.0]}
+    plain, wide = score(table1, rec, b), score(trained, rec, b)
+    assert wide["start_history"].startswith("from rest through 120 V")
+    # measured: 0.0043 µm against 0.033 µm (offsets removed)
+    assert wide["rms"] < 0.2 * plain["rms"]
+
+
 def test_validate_scores_a_record_cut_mid_slope_after_its_estimated_history(table1):
     # the score of `fonbw validate` on a record that does not start at rest, with
     # a 0.8 µm sensor offset: the history estimated on the burn-in against the

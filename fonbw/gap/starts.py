@@ -46,7 +46,10 @@ class RecordStarts:
 
     def __init__(self, train, validate):
         self.raw = {"train": list(train), "validate": list(validate)}
-        self.rest = rest = rest_level([r.u for k in KINDS for r in self.raw[k]])
+        inputs = [r.u for k in KINDS for r in self.raw[k]]
+        self.rest = rest = rest_level(inputs)
+        #: the input range the stage is seen to be driven over [V]
+        self.stage = (min(float(np.min(u)) for u in inputs), max(float(np.max(u)) for u in inputs))
         self.starts = {k: [start_state(r, rest=rest) for r in self.raw[k]] for k in KINDS}
         self.history = {k: [None if s.at_rest or s.burn_in <= 0 else backward_burn_in(r.u, s.burn_in)
                             for r, s in zip(self.raw[k], self.starts[k])] for k in KINDS}
@@ -71,7 +74,7 @@ class RecordStarts:
             for i, (r, s) in enumerate(zip(self.raw[kind], self.starts[kind])):
                 if s.at_rest or s.burn_in <= 0:
                     continue
-                h, text, e = estimate_history(simulate, r.u, r.y, s.burn_in, rest=self.rest)
+                h, text, e = estimate_history(simulate, r.u, r.y, s.burn_in, rest=self.rest, stage=self.stage)
                 self.history[kind][i] = h
                 self.info[(kind, i)] = {"history": text, "rms_burn_in": math.sqrt(e) if math.isfinite(e) else None}
         return bool(self.info)
