@@ -67,17 +67,19 @@ class RecordStarts:
 
     def estimate(self, simulate):
         """Choose each mid-drive record's history with the model `simulate`
-        (``simulate(u)`` -> output [µm] from rest). Returns True when any
-        record starts mid-drive (its history may have changed)."""
-        self.info = {}
+        (``simulate(u)`` -> output [µm] from rest). Returns True when a
+        record's history changed."""
+        self.info, changed = {}, False
         for kind in KINDS:
             for i, (r, s) in enumerate(zip(self.raw[kind], self.starts[kind])):
                 if s.at_rest or s.burn_in <= 0:
                     continue
                 h, text, e = estimate_history(simulate, r.u, r.y, s.burn_in, rest=self.rest, stage=self.stage)
+                old = self.history[kind][i]
+                changed |= old is None or not np.array_equal(old, h)
                 self.history[kind][i] = h
                 self.info[(kind, i)] = {"history": text, "rms_burn_in": math.sqrt(e) if math.isfinite(e) else None}
-        return bool(self.info)
+        return changed
 
     def to_dict(self):
         """Per-record start states, with ``history`` and ``rms_burn_in`` [µm]
