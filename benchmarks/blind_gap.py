@@ -45,7 +45,12 @@ import time
 
 import numpy as np
 
-from gap_summary import summary
+# the package of this checkout before an installed one: a held-out run from a
+# frozen worktree must run that worktree's code (an editable install points at
+# the main checkout). Spawned dask workers inherit the parent's sys.path.
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from gap_summary import summary  # noqa: E402
 
 DEFAULTS = {"families": None, "scale": 1.0, "mid_drive": 0.3, "oracle": False, "oracle_evals": 1500,
             "cache": None, "diagnose": None, "diagnose_kwargs": None}
