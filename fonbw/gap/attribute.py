@@ -235,8 +235,7 @@ class Diagnosis:
         nominal's validation RMS fell from 0.218 to 0.049 µm (noise 0.025),
         and to 0.025 µm with the histories chosen again by the refit model.
         """
-        raw, starts = self.rs.raw["train"], self.rs.starts["train"]
-        at_rest = [r for r, s in zip(raw, starts) if s.at_rest or s.burn_in <= 0]
+        raw, at_rest = self.rs.raw["train"], self.rs.at_rest("train")
         if len(at_rest) == len(raw) or not at_rest:
             return self.coarse
         span = lambda recs: (max(float(np.max(r.u)) for r in recs)  # noqa: E731

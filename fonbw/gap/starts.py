@@ -51,9 +51,13 @@ class RecordStarts:
         #: the input range the stage is seen to be driven over [V]
         self.stage = (min(float(np.min(u)) for u in inputs), max(float(np.max(u)) for u in inputs))
         self.starts = {k: [start_state(r, rest=rest) for r in self.raw[k]] for k in KINDS}
-        self.history = {k: [None if s.at_rest or s.burn_in <= 0 else backward_burn_in(r.u, s.burn_in)
+        self.history = {k: [None if _from_rest(s) else backward_burn_in(r.u, s.burn_in)
                             for r, s in zip(self.raw[k], self.starts[k])] for k in KINDS}
         self.info = {}
+
+    def at_rest(self, kind):
+        """The `kind` records as given that the models run from rest (no history)."""
+        return [r for r, s in zip(self.raw[kind], self.starts[kind]) if _from_rest(s)]
 
     def records(self, kind):
         """The `kind` records preceded by their histories, and the samples of
@@ -72,7 +76,7 @@ class RecordStarts:
         self.info, changed = {}, False
         for kind in KINDS:
             for i, (r, s) in enumerate(zip(self.raw[kind], self.starts[kind])):
-                if s.at_rest or s.burn_in <= 0:
+                if _from_rest(s):
                     continue
                 h, text, e = estimate_history(simulate, r.u, r.y, s.burn_in, rest=self.rest, stage=self.stage)
                 old = self.history[kind][i]
@@ -94,6 +98,12 @@ class RecordStarts:
                 "message": ("records starting mid-drive: their start-up transients are burned in and not "
                             "attributed, each run after the history that best explains its burn-in"
                             if mid else "every record starts at rest")}
+
+
+def _from_rest(start):
+    """A record with this :class:`fonbw.start.StartState` is run from rest:
+    it starts there, or it has no burn-in to estimate a history on."""
+    return start.at_rest or start.burn_in <= 0
 
 
 def _preroll(rec, hist, b):
