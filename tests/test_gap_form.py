@@ -649,6 +649,32 @@ def test_record_starts_skip_the_history_and_the_burn_in():
     assert info["rms_burn_in"] == pytest.approx(1e-6 * (h.size + b), rel=1e-9)
 
 
+def test_record_starts_restore_one_kind_and_keep_the_other():
+    # the nominal's refit on new training histories can be undone: the training
+    # histories go back, the validation ones stay as last chosen
+    from fonbw.gap.starts import RecordStarts
+
+    dt = 2e-4
+    t = np.arange(5000) * dt
+    rest = _rec(60.0 - 60.0 * np.cos(2 * np.pi * t), dt=dt)
+    tr = _rec(60.0 + 60.0 * np.sin(2 * np.pi * t + 0.3), dt=dt)
+    va = _rec(60.0 + 50.0 * np.sin(2 * np.pi * t + 0.5), dt=dt)
+    rs = RecordStarts([rest, tr], [va])
+    assert rs.from_rest("train") == [0] and rs.at_rest("train") == [rest]
+    saved = rs.saved("train")
+    backward = saved[0][1].copy()
+    assert saved[0][0] is None and backward.size == rs.starts["train"][1].burn_in
+    assert rs.estimate(lambda v: v + 1e-6 * v.size)
+    h_va = rs.history["validate"][0]
+    assert not np.array_equal(rs.history["train"][1], backward)
+    rs.restore("train", saved)
+    np.testing.assert_array_equal(rs.history["train"][1], backward)
+    assert rs.history["validate"][0] is h_va
+    assert set(rs.info) == {("validate", 0)}
+    (r1, _), (_, s1) = rs.records("train")
+    assert s1 == 2 * backward.size  # the backward burn-in and the burn-in, skipped again
+
+
 def test_history_legs_are_bounded_by_the_burn_in():
     # a record cut in a pause (input noise of 1 µV) that ramps to its extremes
     # only late: its capped burn-in moves by nothing, and the legs, timed by

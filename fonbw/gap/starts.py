@@ -55,9 +55,22 @@ class RecordStarts:
                             for r, s in zip(self.raw[k], self.starts[k])] for k in KINDS}
         self.info = {}
 
+    def from_rest(self, kind):
+        """Indices of the `kind` records that the models run from rest (no history)."""
+        return [i for i, s in enumerate(self.starts[kind]) if _from_rest(s)]
+
     def at_rest(self, kind):
         """The `kind` records as given that the models run from rest (no history)."""
-        return [r for r, s in zip(self.raw[kind], self.starts[kind]) if _from_rest(s)]
+        return [self.raw[kind][i] for i in self.from_rest(kind)]
+
+    def saved(self, kind):
+        """The histories of the `kind` records as they stand, for :meth:`restore`."""
+        return list(self.history[kind]), {k: v for k, v in self.info.items() if k[0] == kind}
+
+    def restore(self, kind, saved):
+        """Put back the `kind` histories :meth:`saved` returned (the other kind's stay)."""
+        self.history[kind] = list(saved[0])
+        self.info = {**{k: v for k, v in self.info.items() if k[0] != kind}, **saved[1]}
 
     def records(self, kind):
         """The `kind` records preceded by their histories, and the samples of
