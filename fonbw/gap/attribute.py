@@ -264,12 +264,13 @@ class Diagnosis:
     def estimate_histories(self, model):
         """Choose, with the FONBW `model`, the history of every record that
         starts mid-drive (the one that best explains its burn-in) and, when
-        one changed, rebuild the records and fitters and return True."""
-        if self.rs.estimate(lambda u: model.simulate(u, self.dt)):
+        one changed, rebuild the records and fitters. Returns the kinds
+        ("train", "validate") whose histories changed (empty: none)."""
+        changed = self.rs.estimate(lambda u: model.simulate(u, self.dt))
+        if changed:
             self.apply_histories()
             self.use_space(self.space)
-            return True
-        return False
+        return changed
 
     def use_space(self, space):
         """Fit the FONBW core in `space` from now on (the full-rate and the
@@ -360,9 +361,10 @@ class Diagnosis:
         """
         rest = self.rs.from_rest("train")
         before, base, saved = self._rest_mse(rest), self.base, self.rs.saved("train")
-        if not self.estimate_histories(self.nominal):
+        changed = self.estimate_histories(self.nominal)
+        if not changed:
             return
-        if all(_same(a, b) for a, b in zip(saved[0], self.rs.history["train"])):
+        if "train" not in changed:
             self.set_nominal(base)  # new validation histories only: predict after them
             return
         refit(base["x"])
@@ -379,8 +381,7 @@ class Diagnosis:
         """MSE [µm²] of the nominal on the training records `idx` (run from rest)."""
         if not idx:
             return None
-        se = sum(float(np.sum((self.yref_tr[i] - self.train[i].y) ** 2)) for i in idx)
-        return se / sum(self.train[i].y.size for i in idx)
+        return checks.mse([self.train[i] for i in idx], [self.yref_tr[i] for i in idx])
 
     def set_nominal(self, fit):
         """Take the FONBW configuration `fit` as the nominal and predict with it."""
@@ -698,13 +699,6 @@ class Diagnosis:
     def __getstate__(self):
         # a worker gets the diagnosis without the pool (pipes, processes)
         return {**self.__dict__, "pool": None}
-
-
-def _same(h0, h1):
-    """Whether two record histories (input arrays [V], or None) are one."""
-    if h0 is None or h1 is None:
-        return h0 is h1
-    return np.array_equal(h0, h1)
 
 
 class NominalDiverges(ValueError):

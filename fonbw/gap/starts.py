@@ -84,16 +84,17 @@ class RecordStarts:
 
     def estimate(self, simulate):
         """Choose each mid-drive record's history with the model `simulate`
-        (``simulate(u)`` -> output [µm] from rest). Returns True when a
-        record's history changed."""
-        self.info, changed = {}, False
+        (``simulate(u)`` -> output [µm] from rest). Returns the kinds
+        ("train", "validate") in which a record's history changed (empty: none)."""
+        self.info, changed = {}, set()
         for kind in KINDS:
             for i, (r, s) in enumerate(zip(self.raw[kind], self.starts[kind])):
                 if _from_rest(s):
                     continue
                 h, text, e = estimate_history(simulate, r.u, r.y, s.burn_in, rest=self.rest, stage=self.stage)
                 old = self.history[kind][i]
-                changed |= old is None or not np.array_equal(old, h)
+                if old is None or not np.array_equal(old, h):
+                    changed.add(kind)
                 self.history[kind][i] = h
                 self.info[(kind, i)] = {"history": text, "rms_burn_in": math.sqrt(e) if math.isfinite(e) else None}
         return changed
