@@ -16,7 +16,8 @@ split into training and validation sets:
    the nonlinear parameters of the hysteresis (ρ, σ^(1/n)ρ, n, λ1, λ2) and of
    the effect by a global search (jDE on decimated records) and a
    warm-started local one (a grid over the effect's parameters, then
-   :func:`fonbw.de.jde_minimize`'s gradient polish), the linear ones (ku,
+   :func:`fonbw.de.jde_minimize`'s gradient polish; the amplifier on the
+   FONBW nominal from two seeds, the better training fit kept), the linear ones (ku,
    kh, creep gains, drift coefficients) by least squares at every
    evaluation, or by Gauss-Newton with the saturation block, which bends
    the model's own output. On the validation records
@@ -93,6 +94,7 @@ GLOBAL_SHARE = 0.6
 #: (:meth:`Diagnosis.choose_histories_again`): on a FONBW core (seed 21022)
 #: such a refit moved it by 1e-9, on a Preisach core (seed 23019) by +0.14.
 REST_TOL = 1e-3
+
 
 __all__ = ["diagnose", "Diagnosis"]
 
@@ -441,17 +443,30 @@ class Diagnosis:
         nominal model, from the configuration `start`, in the attribution
         context `att` (default: the current one).
 
-        A global search on the decimated records, then a local refit at the
-        full rate. Returns (fit, validation predictions, validation MSE [µm²]).
+        On the FONBW nominal a block is searched from its ``search_seeds``
+        seeds (:class:`fonbw.gap.effects.Effect`) and the best full-rate
+        training fit is kept. Returns (fit, validation predictions,
+        validation MSE [µm²]).
         """
         a = self.att if att is None else att
-        fitter, yref_tr = a["fitter"], a["yref_tr"]
         eff = [self.lib[i] for i in active]
+        # on the reference only the block's own parameters are searched: four
+        # seeds gave one fit for the amplifier on a Preisach core (seed 24023)
+        n = eff[-1].search_seeds if a["core"] == "fonbw" else 1
+        fits = [self._search_and_polish(eff, start, a, self.seed + 1000 * k) for k in range(n)]
+        fit = min(fits, key=lambda f: f["rms"])  # the first of equals
+        pv = self.cut_va(a["fitter"].predict(self.val, fit, eff, a["yref_va"]))
+        return fit, pv, checks.mse(self.val_s, pv)
+
+    def _search_and_polish(self, eff, start, a, seed):
+        """One refit of effects `eff` from `start` in context `a`: a global
+        search on the decimated records, then a local refit at the full rate."""
+        fitter, yref_tr = a["fitter"], a["yref_tr"]
         th0 = [start["th"][j] if j < len(start["th"]) else (e.grid[0] if len(e.names) else np.zeros(0))
                for j, e in enumerate(eff)]
         evals = a["global_evals_outer"] if eff[-1].output_nonlinear else a["global_evals"]
         fc = a["fitter_c"].refit(eff, start["x"], th0, a["yref_c"], evals=evals,
-                                 seed=self.seed, new=len(eff) - 1, local=False, popsize=a["popsize"])
+                                 seed=seed, new=len(eff) - 1, local=False, popsize=a["popsize"])
         # the coarse optimum can sit worse at the full rate than the start
         # itself (the GL sums depend on the step): polish the better of the
         # two, the start with the new block's grid tried at the full rate
@@ -470,9 +485,7 @@ class Diagnosis:
                                     [np.asarray(t, dtype=float)[None, :] for t in th_s], yref_tr)[0])
         c_c = float(fitter.cost(fc["x"][None, :], eff, [t[None, :] for t in fc["th"]], yref_tr)[0])
         x1, th1 = (fc["x"], fc["th"]) if c_c <= c_s else (np.asarray(start["x"]), th_s)
-        fit = fitter.refit(eff, x1, th1, yref_tr, evals=self.refit_evals, seed=self.seed)
-        pv = self.cut_va(fitter.predict(self.val, fit, eff, a["yref_va"]))
-        return fit, pv, checks.mse(self.val_s, pv)
+        return fitter.refit(eff, x1, th1, yref_tr, evals=self.refit_evals, seed=seed)
 
     def check_candidate(self, i, step, fit, pv, mse, eff):
         """The checks of library effect `i` added at greedy `step` (0-based).
