@@ -95,7 +95,6 @@ GLOBAL_SHARE = 0.6
 #: such a refit moved it by 1e-9, on a Preisach core (seed 23019) by +0.14.
 REST_TOL = 1e-3
 
-
 __all__ = ["diagnose", "Diagnosis"]
 
 
