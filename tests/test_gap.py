@@ -731,6 +731,36 @@ def test_a_candidate_that_diverges_on_validation_is_listed_without_a_gap():
     json.dumps(me.candidates, allow_nan=False)
 
 
+def test_an_effect_needs_a_bic_drop_of_more_than_ten_on_the_training_records(monkeypatch):
+    # a candidate that closes 0.42 of the validation gap but barely moves the
+    # training fit (ΔBIC −5: its gap is how it extrapolates) fails before its
+    # bootstrap; the same candidate with ΔBIC −20 goes on to the checks and passes
+    from types import SimpleNamespace
+
+    from fonbw.gap import checks
+    from fonbw.gap.attribute import Diagnosis
+
+    monkeypatch.setattr(checks, "bootstrap", lambda *a: {"p05": 0.2, "p10": 0.3, "p50": 0.4})
+    monkeypatch.setattr(checks, "loro", lambda *a: {"ratios": [0.5], "pooled_ratio": 0.5})
+    n, mse_tr = 10_000, 0.01
+    block = SimpleNamespace(names=("a", "b"), lin_names=(), identified=lambda th: True)
+    me = SimpleNamespace(current={"mse": 0.02, "mse_tr": mse_tr, "pred": None, "fit": None, "eff": []},
+                         lib=[block], sigma2=0.001, min_gap_closed=0.2, val_s=None, seed=0,
+                         att={"excess": 0.019, "fitter": SimpleNamespace(y=np.zeros(n)), "yref_tr": None})
+
+    def checked(dbic):
+        # the training RMS whose BIC change against the nominal is `dbic` (k = 2)
+        rms = math.sqrt(mse_tr * math.exp((dbic - 2 * math.log(n)) / n))
+        return Diagnosis.check_candidate(me, 0, 0, {"rms": rms, "th": [np.zeros(2)]}, None, 0.012, [block])
+
+    assert checks.BIC_EVIDENCE == -10.0
+    weak, strong = checked(-5.0), checked(-20.0)
+    assert weak["delta_bic"] == pytest.approx(-5.0) and strong["delta_bic"] == pytest.approx(-20.0)
+    assert weak["material"] and weak["gap_closed_step"] == pytest.approx(0.008 / 0.019)
+    assert not weak["passed"] and "bootstrap" not in weak
+    assert strong["passed"] and strong["bootstrap"]["p10"] == 0.3
+
+
 def test_nominal_of_a_set_with_a_mid_drive_record_is_identified_on_the_records_at_rest():
     # a FONBW core whose eq.-19 training record is cut mid-drive at 3.5 s (the
     # other two start at rest and sweep 0-104 V): the identification leaves the

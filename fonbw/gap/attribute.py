@@ -28,7 +28,7 @@ split into training and validation sets:
 4. **Check** — an effect is accepted only if it closes a material part of
    the excess gap (``min_gap_closed``; at a later step, or most of what the
    effects accepted before it leave), lowers the Bayesian information
-   criterion on the training records, survives a Bayesian block bootstrap over
+   criterion on the training records by more than 10, survives a Bayesian block bootstrap over
    segments of the validation records (10th percentile of gap_closed > 0;
    Dirichlet weights, because the evidence of a lag sits in the two or three
    segments with step edges, see :func:`fonbw.gap.checks.bootstrap`), and its parameters
@@ -492,7 +492,8 @@ class Diagnosis:
         `fit`, `pv`, `mse` are its refit, validation predictions and MSE,
         `eff` the effect list it was fitted with. Returns the ``checks`` dict:
         ``gap_closed_step``, ``delta_bic`` (training records), ``material``,
-        ``bootstrap`` and ``loro`` (only when material with ΔBIC < 0),
+        ``bootstrap`` and ``loro`` (only when material with ΔBIC below
+        :data:`fonbw.gap.checks.BIC_EVIDENCE`),
         ``passed``, ``identified``.
         """
         cur, lib, sigma2 = self.current, self.lib, self.sigma2
@@ -518,10 +519,11 @@ class Diagnosis:
                 and drop >= checks.LATE_DROP * sigma2)
         out = {"gap_closed_step": gc if math.isfinite(gc) else None, "delta_bic": dbic,
                "material": bool((gc >= need or late) and drop > checks.MIN_DROP * sigma2)}
-        if out["material"] and dbic < 0:
+        evident = dbic < checks.BIC_EVIDENCE
+        if out["material"] and evident:
             out["bootstrap"] = checks.bootstrap(self.val_s, cur["pred"], pv, sigma2, self.seed)
             out["loro"] = checks.loro(self.att["fitter"], cur["fit"], fit, cur["eff"], eff, self.att["yref_tr"])
-        passed = (out["material"] and dbic < 0 and out["bootstrap"]["p10"] > 0
+        passed = (out["material"] and evident and out["bootstrap"]["p10"] > 0
                   and (out["loro"] is None or out["loro"]["pooled_ratio"] < 1.0))
         out["passed"] = bool(passed)
         out["identified"] = bool(lib[i].identified(fit["th"][-1]))
