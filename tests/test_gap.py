@@ -561,8 +561,8 @@ def test_the_amplifier_on_the_fonbw_nominal_keeps_its_best_training_fit_of_two_s
     runs, kept = [], []
     one, whole = Diagnosis._search_and_polish, Diagnosis.refit_candidate
 
-    def spy_one(self, eff, start, a, seed):
-        fit = one(self, eff, start, a, seed)
+    def spy_one(self, eff, start, a, seed, grid):
+        fit = one(self, eff, start, a, seed, grid)
         runs.append((eff[-1].name, seed, fit["rms"], a["core"]))
         return fit
 

@@ -452,23 +452,22 @@ class Diagnosis:
         # on the reference only the block's own parameters are searched: four
         # seeds gave one fit for the amplifier on a Preisach core (seed 24023)
         n = eff[-1].search_seeds if a["core"] == "fonbw" else 1
-        fits = [self._search_and_polish(eff, start, a, self.seed + 1000 * k) for k in range(n)]
+        # the start with the new block's grid tried at the full rate does not
+        # depend on the seed: once for every seed's search
+        grid = self._grid_start(eff, start, a)
+        fits = [self._search_and_polish(eff, start, a, self.seed + 1000 * k, grid) for k in range(n)]
         fit = min(fits, key=lambda f: f["rms"])  # the first of equals
         pv = self.cut_va(a["fitter"].predict(self.val, fit, eff, a["yref_va"]))
         return fit, pv, checks.mse(self.val_s, pv)
 
-    def _search_and_polish(self, eff, start, a, seed):
-        """One refit of effects `eff` from `start` in context `a`: a global
-        search on the decimated records, then a local refit at the full rate."""
+    @staticmethod
+    def _grid_start(eff, start, a):
+        """Parameters of effects `eff` to start from (`start`'s, a new block at
+        its first grid point), and the start with the new block's grid tried
+        at the full rate with everything else fixed: (th0, th_s, training cost of th_s)."""
         fitter, yref_tr = a["fitter"], a["yref_tr"]
         th0 = [start["th"][j] if j < len(start["th"]) else (e.grid[0] if len(e.names) else np.zeros(0))
                for j, e in enumerate(eff)]
-        evals = a["global_evals_outer"] if eff[-1].output_nonlinear else a["global_evals"]
-        fc = a["fitter_c"].refit(eff, start["x"], th0, a["yref_c"], evals=evals,
-                                 seed=seed, new=len(eff) - 1, local=False, popsize=a["popsize"])
-        # the coarse optimum can sit worse at the full rate than the start
-        # itself (the GL sums depend on the step): polish the better of the
-        # two, the start with the new block's grid tried at the full rate
         new_i = len(eff) - 1
         th_s = list(th0)
         if len(eff[new_i].names):
@@ -482,6 +481,19 @@ class Diagnosis:
         else:
             c_s = float(fitter.cost(np.asarray(start["x"])[None, :], eff,
                                     [np.asarray(t, dtype=float)[None, :] for t in th_s], yref_tr)[0])
+        return th0, th_s, c_s
+
+    def _search_and_polish(self, eff, start, a, seed, grid):
+        """One refit of effects `eff` from `start` in context `a`: a global
+        search on the decimated records, then a local refit at the full rate
+        from the better of its optimum and the grid start `grid` (:meth:`_grid_start`)."""
+        fitter, yref_tr = a["fitter"], a["yref_tr"]
+        th0, th_s, c_s = grid
+        evals = a["global_evals_outer"] if eff[-1].output_nonlinear else a["global_evals"]
+        fc = a["fitter_c"].refit(eff, start["x"], th0, a["yref_c"], evals=evals,
+                                 seed=seed, new=len(eff) - 1, local=False, popsize=a["popsize"])
+        # the coarse optimum can sit worse at the full rate than the start
+        # itself (the GL sums depend on the step): polish the better of the two
         c_c = float(fitter.cost(fc["x"][None, :], eff, [t[None, :] for t in fc["th"]], yref_tr)[0])
         x1, th1 = (fc["x"], fc["th"]) if c_c <= c_s else (np.asarray(start["x"]), th_s)
         return fitter.refit(eff, x1, th1, yref_tr, evals=self.refit_evals, seed=seed)
