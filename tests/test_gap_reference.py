@@ -96,6 +96,39 @@ def test_kept_columns_are_those_of_the_whole_matrix(kw, theta):
         ref.columns(u, DT, theta, keep=np.ones(3, dtype=bool))
 
 
+@pytest.mark.parametrize("kw, theta", [
+    (dict(level=0), ()),
+    (dict(level=2, rate="both", initial="burn-in", offset=False), (1e-4, 0.3)),
+    (dict(level=6, degree=5, rate="viscous", relax=(0.002, 0.02), initial="ascended"), (1e-5, 2e-4, 0.4)),
+])
+def test_combinations_of_the_kept_columns_are_their_matrix_product(kw, theta):
+    # the joint refits weigh a few combinations B of the active columns; the
+    # play kernel sums them as it makes the columns (in SIMD lanes, a block of
+    # 256 samples at a time): the product of the kept columns (the scalar
+    # kernel) with B, to round-off, on records of whole blocks, a partial last
+    # block and less than one block
+    ref = ReferenceHysteresis(n_plays=8, u_range=(0.0, 120.0), **kw)
+    rng = np.random.default_rng(5)
+    keep = rng.random(ref.n_columns) < 0.6
+    keep[ref.n_play_columns:] = True
+    B = rng.standard_normal((int(keep.sum()), 6))
+    for n in (10_000, 512, 100):
+        u = eq19_input(FS, 2.0)[1][:n]
+        want = ref.columns(u, DT, theta, keep=keep) @ B
+        got = ref.columns(u, DT, theta, keep=keep, basis=B)
+        assert got.shape == (n, 6)
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-13 * np.abs(want).max())
+    with pytest.raises(ValueError, match="rows"):
+        ref.columns(u, DT, theta, keep=keep, basis=B[1:])
+
+
+def test_polynomial_columns_are_the_powers_of_the_normalized_input():
+    ref = ReferenceHysteresis(n_plays=2, degree=5, level=0, u_range=(0.0, 120.0))
+    u = eq19_input(FS, 2.0)[1]
+    x = (u - 60.0) / 60.0
+    np.testing.assert_allclose(ref.columns(u, DT)[:, 2:], x[:, None] ** np.arange(6), rtol=1e-14, atol=1e-15)
+
+
 def test_relaxation_column_is_the_lag_of_a_step_in_closed_form():
     # x steps from -1 to x1 at sample 1: the lag is x1 - (x1 + 1) a^k, a = e^(-dt/tau)
     tau = 0.005

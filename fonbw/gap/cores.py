@@ -149,9 +149,7 @@ class ReferenceCore:
 
     def phi(self, u, dt):
         """Active columns (q, n) of the reference on input `u` [V] at step `dt` [s]."""
-        P = self.ref.columns(u, dt, self.theta_, keep=self.active)
-        if self.basis is not None:
-            P = P @ self.basis
+        P = self.ref.columns(u, dt, self.theta_, keep=self.active, basis=self.basis)
         return np.ascontiguousarray(P.T)
 
     def base(self, rec, X, Us, transformed):

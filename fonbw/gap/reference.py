@@ -202,22 +202,57 @@ def _filtered_rate(u, dt, tau):  # pragma: no cover - compiled
     return out
 
 
+@njit(cache=True, inline="always")
+def _level_values(z, xi, k, g, binom, xp, ep, v):  # pragma: no cover - compiled
+    # The k + 1 columns of one play at one sample: relays on the Preisach line
+    # α - β = 2 r_j, their density along it a Bernstein polynomial of degree
+    # k in the normalized relay centre ξ. Relays below the play state z are
+    # up, so the line's output is the integral of the density up to ξ(z) (up
+    # to a constant), i.e. for the basis b_{i,k}: (width / (k + 1))
+    # Σ_{l > i} b_{l,k+1}(ξ). Non-negative weights give a density ≥ 0 over
+    # the input range.
+    eta = 1.0 - xi
+    # the common degrees in closed form: the general loop costs several
+    # times more than the play bank itself
+    if k == 0:
+        v[0] = z  # the classical PI model: the play itself
+    elif k == 1:
+        top = xi * xi
+        v[1] = g * top
+        v[0] = g * (top + 2.0 * xi * eta)
+    elif k == 2:
+        top = xi * xi * xi
+        mid = top + 3.0 * xi * xi * eta
+        v[2] = g * top
+        v[1] = g * mid
+        v[0] = g * (mid + 3.0 * xi * eta * eta)
+    else:
+        for l in range(1, k + 2):  # products, not pow: pow dominated the cost
+            xp[l] = xp[l - 1] * xi
+            ep[l] = ep[l - 1] * eta
+        acc = 0.0
+        for i in range(k, -1, -1):
+            acc += binom[i + 1] * xp[i + 1] * ep[k - i]
+            v[i] = acc * g
+
+
 @njit(cache=True)
-def _level_columns(pz, m, k, lo, width, col, dst):  # pragma: no cover - compiled
-    # Relays on the Preisach line α - β = 2 r_j, their density along it a
-    # Bernstein polynomial of degree k in the normalized relay centre ξ:
-    # relays below the play state z are up, so the line's output is the
-    # integral of the density up to ξ(z) (up to a constant), i.e. for the
-    # basis b_{i,k}: (width / (k + 1)) Σ_{l > i} b_{l,k+1}(ξ). Non-negative
-    # weights give a density ≥ 0 over the input range. Rate-independent plays
-    # stay within ξ ∈ [-0.5, 1.5]; clamping there keeps widened thresholds
-    # (rate dependence) from extrapolating the cubic far outside.
-    # Column i m + j (basis i, play j) goes to dst[:, col[i m + j]], or
-    # nowhere when that is negative; pz (the play states) may be dst's own
-    # first m columns, as each is read before column j is written.
+def _binomials(k):  # pragma: no cover - compiled
     binom = np.ones(k + 2)
     for l in range(1, k + 2):
         binom[l] = binom[l - 1] * (k + 2 - l) / l
+    return binom
+
+
+@njit(cache=True)
+def _level_columns(pz, m, k, lo, width, col, dst):  # pragma: no cover - compiled
+    # Column i m + j (basis i, play j) goes to dst[:, col[i m + j]], or
+    # nowhere when that is negative; pz (the play states) may be dst's own
+    # first m columns, as each is read before column j is written.
+    # Rate-independent plays stay within ξ ∈ [-0.5, 1.5]; clamping there
+    # keeps widened thresholds (rate dependence) from extrapolating the
+    # polynomial far outside.
+    binom = _binomials(k)
     xp = np.ones(k + 2)
     ep = np.ones(k + 2)
     v = np.empty(k + 1)
@@ -225,33 +260,76 @@ def _level_columns(pz, m, k, lo, width, col, dst):  # pragma: no cover - compile
     for t in range(pz.shape[0]):
         for j in range(m):
             xi = min(max((pz[t, j] - lo) / width, -0.5), 1.5)
-            eta = 1.0 - xi
-            # the common degrees in closed form: the general loop costs
-            # several times more than the play bank itself
-            if k == 0:
-                v[0] = pz[t, j]  # the classical PI model: the play itself
-            elif k == 1:
-                top = xi * xi
-                v[1] = g * top
-                v[0] = g * (top + 2.0 * xi * eta)
-            elif k == 2:
-                top = xi * xi * xi
-                mid = top + 3.0 * xi * xi * eta
-                v[2] = g * top
-                v[1] = g * mid
-                v[0] = g * (mid + 3.0 * xi * eta * eta)
-            else:
-                for l in range(1, k + 2):  # products, not pow: pow dominated the cost
-                    xp[l] = xp[l - 1] * xi
-                    ep[l] = ep[l - 1] * eta
-                acc = 0.0
-                for i in range(k, -1, -1):
-                    acc += binom[i + 1] * xp[i + 1] * ep[k - i]
-                    v[i] = acc * g
+            _level_values(pz[t, j], xi, k, g, binom, xp, ep, v)
             for i in range(k + 1):
                 c = col[i * m + j]
                 if c >= 0:
                     dst[t, c] = v[i]
+
+
+@njit(cache=True)
+def _combined_kernel(u, r, scale, add, z, k, lo, width, row, W, out):  # pragma: no cover - compiled
+    # The play bank, its level columns and their combinations W in one pass:
+    # out[t] = Σ_a col_a(t) W[a], where column i m + j (basis i of play j)
+    # is row[i m + j] of W, or unused when that is negative. The columns are
+    # made a block of samples at a time, each play's over the whole block so
+    # that the arithmetic runs in SIMD lanes (the sample loop of the play
+    # bank cannot), into a buffer that stays in cache, and each block is one
+    # matrix product.
+    m = r.shape[0]
+    nt = W.shape[0]
+    binom = _binomials(k)
+    g = width / (k + 1)
+    block = 256
+    pz = np.empty((m, block))
+    xi = np.empty(block)
+    xp = np.empty((k + 2, block))
+    ep = np.empty((k + 2, block))
+    acc = np.empty(block)
+    buf = np.empty((nt, block))
+    n = u.shape[0]
+    for t0 in range(0, n, block):
+        nb = min(block, n - t0)
+        for b in range(nb):
+            t = t0 + b
+            ut, s, a = u[t], scale[t], add[t]
+            for j in range(m):
+                rj = r[j] * s + a
+                zj = z[j]
+                if zj < ut - rj:
+                    zj = ut - rj
+                elif zj > ut + rj:
+                    zj = ut + rj
+                z[j] = zj
+                pz[j, b] = zj
+        for j in range(m):
+            if k == 0:
+                if row[j] >= 0:
+                    buf[row[j], :nb] = pz[j, :nb]
+                continue
+            for b in range(nb):
+                x = min(max((pz[j, b] - lo) / width, -0.5), 1.5)
+                xp[0, b] = 1.0
+                ep[0, b] = 1.0
+                xp[1, b] = x
+                ep[1, b] = 1.0 - x
+                acc[b] = 0.0
+            for l in range(2, k + 2):
+                for b in range(nb):
+                    xp[l, b] = xp[l - 1, b] * xp[1, b]
+                    ep[l, b] = ep[l - 1, b] * ep[1, b]
+            for i in range(k, -1, -1):
+                c = binom[i + 1]
+                for b in range(nb):
+                    acc[b] += c * xp[i + 1, b] * ep[k - i, b]
+                ri = row[i * m + j]
+                if ri >= 0:
+                    for b in range(nb):
+                        buf[ri, b] = acc[b] * g
+        if nb == block:
+            np.dot(buf.T, W, out[t0:t0 + nb])
+        else:
+            out[t0:t0 + nb] = np.dot(np.ascontiguousarray(buf[:, :nb].T), W)
 
 
 def play_bank(v, thresholds, z0=None, scale=None) -> np.ndarray:
@@ -429,7 +507,7 @@ class ReferenceHysteresis:
 
     # -- regressors ---------------------------------------------------------
 
-    def columns(self, u, dt: float, theta=(), keep=None) -> np.ndarray:
+    def columns(self, u, dt: float, theta=(), keep=None, basis=None) -> np.ndarray:
         """Regressor matrix Φ, shape (n_samples, :attr:`n_columns`).
 
         Parameters
@@ -443,6 +521,11 @@ class ReferenceHysteresis:
         keep : array_like of bool, optional
             Only these columns, in their order (the same numbers as those
             columns of the whole Φ, at a fraction of its memory traffic).
+        basis : array_like, optional
+            (n_kept, r) combinations of the (kept) columns: returns Φ B,
+            shape (n_samples, r), summed as the play columns are made,
+            without them in memory (equal to ``columns(...) @ basis`` up to
+            the order of the sums).
         """
         u = _input(u)
         theta = tuple(float(t) for t in theta)
@@ -460,7 +543,6 @@ class ReferenceHysteresis:
         else:
             z = np.full(r.size, u[0])
         lo, hi = self._range()
-        x = (u - 0.5 * (lo + hi)) / (0.5 * (hi - lo))
         m, q = self.n_plays, self.n_play_columns
         # where each column goes: all of them in order, or the kept ones packed
         col = np.arange(self.n_columns)
@@ -469,8 +551,10 @@ class ReferenceHysteresis:
             if keep.shape != (self.n_columns,):
                 raise ValueError(f"keep needs {self.n_columns} flags, got shape {keep.shape}")
             col = np.where(keep, np.cumsum(keep) - 1, -1)
-        out = np.empty((u.size, int(col.max()) + 1))
         scale, add = self._scale(u, dt, theta)
+        if basis is not None:
+            return self._combined(u, dt, theta, z, scale, add, col, basis)[u.size - n:]
+        out = np.empty((u.size, int(col.max()) + 1))
         if keep is None:
             pz = out[:, :m]  # the states, overwritten by the level columns
         else:
@@ -478,10 +562,24 @@ class ReferenceHysteresis:
         _play_kernel(u, r, scale, add, z, pz)
         if self.level or keep is not None:
             _level_columns(pz, m, self.level, lo, hi - lo, col[:q], out)
+        self._other_columns(u, dt, theta, col, out)
+        return out[u.size - n:]
+
+    def _other_columns(self, u, dt, theta, col, out):
+        """The polynomial, fractional and relaxation columns, each to out[:, col[c]]
+        (c counted over all columns; nowhere when negative)."""
+        q = self.n_play_columns
+        lo, hi = self._range()
+        x = (u - 0.5 * (lo + hi)) / (0.5 * (hi - lo))
         first = 0 if self.offset else 1
+        power = np.ones_like(x)
         for i in range(first, self.degree + 1):
+            if i > 0:
+                # products: numpy's x ** i calls pow per sample (25 ms for six
+                # powers of 1.5e5 samples, as long as the play columns)
+                power = power * x
             if col[q + i - first] >= 0:
-                out[:, col[q + i - first]] = x ** i
+                out[:, col[q + i - first]] = power
         if "mu" in self.theta_names and col[q + self.degree + 1 - first] >= 0:
             # measured from the first sample, so that a record starting away
             # from 0 V does not see a step at t = 0
@@ -491,7 +589,29 @@ class ReferenceHysteresis:
             if c >= 0:
                 # lag − input: ≤ 0 on a rise, so a weight ≥ 0 takes stroke off fast moves
                 out[:, c] = first_order(x, math.exp(-dt / tau)) - x
-        return out[u.size - n:]
+
+    def _combined(self, u, dt, theta, z, scale, add, col, basis):
+        """Φ B with the play columns summed in the play kernel (:meth:`columns`)."""
+        basis = np.asarray(basis, dtype=float)
+        n_kept = int(col.max()) + 1
+        if basis.ndim != 2 or basis.shape[0] != n_kept:
+            raise ValueError(f"basis needs {n_kept} rows (one per kept column), got shape {basis.shape}")
+        m, q = self.n_plays, self.n_play_columns
+        lo, hi = self._range()
+        plays = col[:q] >= 0
+        out = np.empty((u.size, basis.shape[1]))
+        # kept play column i m + j is row[i m + j] of the play rows of the basis
+        row = np.where(plays, np.cumsum(plays) - 1, -1)
+        _combined_kernel(u, self.thresholds, scale, add, z, self.level, lo, hi - lo,
+                         row, np.ascontiguousarray(basis[col[:q][plays]]), out)
+        rest = col[q:]
+        if np.any(rest >= 0):
+            # the few other columns, packed, times their rows of the basis
+            packed = np.where(rest >= 0, np.cumsum(rest >= 0) - 1, -1)
+            O = np.empty((int(packed.max()) + 1, u.size))  # written a contiguous row a column
+            self._other_columns(u, dt, theta, np.concatenate([np.full(q, -1), packed]), O.T)
+            out += O.T @ basis[rest[rest >= 0]]
+        return out
 
     def _scale(self, u, dt, theta):
         """Per-sample threshold factor and added width [V]: r_j s_k + a_k."""
