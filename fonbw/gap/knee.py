@@ -10,8 +10,8 @@ the Jacobian column by column and evaluated two transcendental functions
 (``logaddexp`` and ``tanh``) over every sample in separate passes. Here one
 pass gives the residual, f and f' (one ``exp`` and one ``log1p`` a sample:
 the slope 1/(1 + e^−s) shares the exponential of the softplus) and the
-normal equations are summed a block of samples at a time, without a
-Jacobian in memory.
+normal equations are summed a block of samples at a time, never with the
+whole Jacobian in memory.
 """
 from __future__ import annotations
 
@@ -25,7 +25,8 @@ __all__ = ["softplus", "residual", "normal_equations"]
 # Below 2^−54 (|s| > 37.4) the correction log1p(e) − e ≈ −e²/2 is under half
 # an ulp of e, so log1p would return e itself: the call is skipped there.
 _TINY = 2.0 ** -54
-# Samples per block of the normal equations (a few columns of 8 kB each).
+# Samples per block of the normal equations (the block's Jacobian, 1024 x (q + 1)
+# values, stays in cache).
 _BLOCK = 1024
 
 
@@ -67,11 +68,10 @@ def softplus(z, knee, w):
 def _residual(B, b, y, knee, w, r, f, df):
     n, q = B.shape
     c = b[q]
+    zs = np.dot(B, b[:q])  # BLAS: the sum per sample across column-major B was half the time
     sse = 0.0
     for i in range(n):
-        z = 0.0
-        for j in range(q):
-            z += B[i, j] * b[j]
+        z = zs[i]
         a, d = _knee((z - knee) / w)
         f[i] = w * a
         df[i] = d
@@ -87,43 +87,25 @@ def residual(B, b, y, knee, w, r, f, df):
     return _residual(B, b, y, float(knee), float(w), r, f, df)
 
 
-# Each entry is a dot product over the samples, taken a block of samples at
-# a time so that the block's columns stay in cache across the entries.
-# Letting LLVM reorder the sums vectorizes them (the step of a Gauss-Newton
-# iteration does not hang on the last bits of a sum over 1e5 samples).
-@nb.njit(cache=True, fastmath={"reassoc", "contract"})
+# The Jacobian is made a block of samples at a time, in cache, and each
+# block's JᵀJ and Jᵀr are matrix products (BLAS): the entries summed one by
+# one in compiled loops took five times longer with 24 base columns.
+@nb.njit(cache=True)
 def _normal(B, c, df, f, r, G, g):
     n, q = B.shape
     G[:, :] = 0.0
     g[:] = 0.0
-    a = np.empty(_BLOCK)
+    J = np.empty((_BLOCK, q + 1))
     for i0 in range(0, n, _BLOCK):
         m = min(_BLOCK, n - i0)
         for i in range(m):
-            a[i] = 1.0 + c * df[i0 + i]
-        for j in range(q):
-            bj = B[i0:i0 + m, j]
-            for k in range(j + 1):
-                bk = B[i0:i0 + m, k]
-                acc = 0.0
-                for i in range(m):
-                    acc += bj[i] * bk[i] * a[i] * a[i]
-                G[j, k] += acc
-            acc, acr = 0.0, 0.0
-            for i in range(m):
-                acc += bj[i] * a[i] * f[i0 + i]
-                acr += bj[i] * a[i] * r[i0 + i]
-            G[q, j] += acc
-            g[j] += acr
-        acc, acr = 0.0, 0.0
-        for i in range(m):
-            acc += f[i0 + i] * f[i0 + i]
-            acr += f[i0 + i] * r[i0 + i]
-        G[q, q] += acc
-        g[q] += acr
-    for j in range(q + 1):
-        for k in range(j):
-            G[k, j] = G[j, k]
+            a = 1.0 + c * df[i0 + i]
+            for j in range(q):
+                J[i, j] = B[i0 + i, j] * a
+            J[i, q] = f[i0 + i]
+        Jm = J[:m]
+        G += np.dot(Jm.T, Jm)
+        g += np.dot(Jm.T, r[i0:i0 + m])
 
 
 def normal_equations(B, c, df, f, r):
