@@ -202,40 +202,6 @@ def _filtered_rate(u, dt, tau):  # pragma: no cover - compiled
     return out
 
 
-@njit(cache=True, inline="always")
-def _level_values(z, xi, k, g, binom, xp, ep, v):  # pragma: no cover - compiled
-    # The k + 1 columns of one play at one sample: relays on the Preisach line
-    # α - β = 2 r_j, their density along it a Bernstein polynomial of degree
-    # k in the normalized relay centre ξ. Relays below the play state z are
-    # up, so the line's output is the integral of the density up to ξ(z) (up
-    # to a constant), i.e. for the basis b_{i,k}: (width / (k + 1))
-    # Σ_{l > i} b_{l,k+1}(ξ). Non-negative weights give a density ≥ 0 over
-    # the input range.
-    eta = 1.0 - xi
-    # the common degrees in closed form: the general loop costs several
-    # times more than the play bank itself
-    if k == 0:
-        v[0] = z  # the classical PI model: the play itself
-    elif k == 1:
-        top = xi * xi
-        v[1] = g * top
-        v[0] = g * (top + 2.0 * xi * eta)
-    elif k == 2:
-        top = xi * xi * xi
-        mid = top + 3.0 * xi * xi * eta
-        v[2] = g * top
-        v[1] = g * mid
-        v[0] = g * (mid + 3.0 * xi * eta * eta)
-    else:
-        for l in range(1, k + 2):  # products, not pow: pow dominated the cost
-            xp[l] = xp[l - 1] * xi
-            ep[l] = ep[l - 1] * eta
-        acc = 0.0
-        for i in range(k, -1, -1):
-            acc += binom[i + 1] * xp[i + 1] * ep[k - i]
-            v[i] = acc * g
-
-
 @njit(cache=True)
 def _binomials(k):  # pragma: no cover - compiled
     binom = np.ones(k + 2)
@@ -244,27 +210,70 @@ def _binomials(k):  # pragma: no cover - compiled
     return binom
 
 
+# Samples per block of the level columns: the arithmetic runs over a block of
+# one play's states, in SIMD lanes (the play bank's own loop over samples
+# cannot), with the block's columns in cache.
+_LEVEL_BLOCK = 256
+
+
+@njit(cache=True, inline="always")
+def _level_block(p, nb, k, lo, width, binom, xp, ep, V):  # pragma: no cover - compiled
+    # V[i, :nb] = column i of one play whose states over a block of samples
+    # are p[:nb]: relays on the Preisach line α - β = 2 r_j, their density
+    # along it a Bernstein polynomial of degree k in the normalized relay
+    # centre ξ. Relays below the play state are up, so the line's output is
+    # the integral of the density up to ξ (up to a constant), i.e. for the
+    # basis b_{i,k}: (width / (k + 1)) Σ_{l > i} b_{l,k+1}(ξ). Non-negative
+    # weights give a density ≥ 0 over the input range. Rate-independent plays
+    # stay within ξ ∈ [-0.5, 1.5]; clamping there keeps widened thresholds
+    # (rate dependence) from extrapolating the polynomial far outside.
+    if k == 0:
+        V[0, :nb] = p[:nb]  # the classical PI model: the play itself
+        return
+    g = width / (k + 1)
+    for b in range(nb):
+        x = min(max((p[b] - lo) / width, -0.5), 1.5)
+        xp[1, b] = x
+        ep[1, b] = 1.0 - x
+    for l in range(2, k + 2):  # products, not pow: pow dominated the cost
+        for b in range(nb):
+            xp[l, b] = xp[l - 1, b] * xp[1, b]
+            ep[l, b] = ep[l - 1, b] * ep[1, b]
+    for b in range(nb):
+        V[k, b] = binom[k + 1] * xp[k + 1, b]
+    for i in range(k - 1, -1, -1):
+        c = binom[i + 1]
+        for b in range(nb):
+            V[i, b] = V[i + 1, b] + c * xp[i + 1, b] * ep[k - i, b]
+    for i in range(k + 1):
+        for b in range(nb):
+            V[i, b] *= g
+
+
 @njit(cache=True)
 def _level_columns(pz, m, k, lo, width, col, dst):  # pragma: no cover - compiled
     # Column i m + j (basis i, play j) goes to dst[:, col[i m + j]], or
     # nowhere when that is negative; pz (the play states) may be dst's own
-    # first m columns, as each is read before column j is written.
-    # Rate-independent plays stay within ξ ∈ [-0.5, 1.5]; clamping there
-    # keeps widened thresholds (rate dependence) from extrapolating the
-    # polynomial far outside.
+    # first m columns, as a block of play j is read before its columns are
+    # written and column j of dst is written by play j only.
+    block = _LEVEL_BLOCK
     binom = _binomials(k)
-    xp = np.ones(k + 2)
-    ep = np.ones(k + 2)
-    v = np.empty(k + 1)
-    g = width / (k + 1)
-    for t in range(pz.shape[0]):
+    xp = np.ones((k + 2, block))
+    ep = np.ones((k + 2, block))
+    V = np.empty((k + 1, block))
+    p = np.empty(block)
+    n = pz.shape[0]
+    for t0 in range(0, n, block):
+        nb = min(block, n - t0)
         for j in range(m):
-            xi = min(max((pz[t, j] - lo) / width, -0.5), 1.5)
-            _level_values(pz[t, j], xi, k, g, binom, xp, ep, v)
+            for b in range(nb):
+                p[b] = pz[t0 + b, j]
+            _level_block(p, nb, k, lo, width, binom, xp, ep, V)
             for i in range(k + 1):
                 c = col[i * m + j]
                 if c >= 0:
-                    dst[t, c] = v[i]
+                    for b in range(nb):
+                        dst[t0 + b, c] = V[i, b]
 
 
 @njit(cache=True)
@@ -272,20 +281,16 @@ def _combined_kernel(u, r, scale, add, z, k, lo, width, row, W, out):  # pragma:
     # The play bank, its level columns and their combinations W in one pass:
     # out[t] = Σ_a col_a(t) W[a], where column i m + j (basis i of play j)
     # is row[i m + j] of W, or unused when that is negative. The columns are
-    # made a block of samples at a time, each play's over the whole block so
-    # that the arithmetic runs in SIMD lanes (the sample loop of the play
-    # bank cannot), into a buffer that stays in cache, and each block is one
-    # matrix product.
+    # made a block of samples at a time into a buffer that stays in cache,
+    # and each block is one matrix product.
     m = r.shape[0]
     nt = W.shape[0]
+    block = _LEVEL_BLOCK
     binom = _binomials(k)
-    g = width / (k + 1)
-    block = 256
     pz = np.empty((m, block))
-    xi = np.empty(block)
-    xp = np.empty((k + 2, block))
-    ep = np.empty((k + 2, block))
-    acc = np.empty(block)
+    xp = np.ones((k + 2, block))
+    ep = np.ones((k + 2, block))
+    V = np.empty((k + 1, block))
     buf = np.empty((nt, block))
     n = u.shape[0]
     for t0 in range(0, n, block):
@@ -303,29 +308,11 @@ def _combined_kernel(u, r, scale, add, z, k, lo, width, row, W, out):  # pragma:
                 z[j] = zj
                 pz[j, b] = zj
         for j in range(m):
-            if k == 0:
-                if row[j] >= 0:
-                    buf[row[j], :nb] = pz[j, :nb]
-                continue
-            for b in range(nb):
-                x = min(max((pz[j, b] - lo) / width, -0.5), 1.5)
-                xp[0, b] = 1.0
-                ep[0, b] = 1.0
-                xp[1, b] = x
-                ep[1, b] = 1.0 - x
-                acc[b] = 0.0
-            for l in range(2, k + 2):
-                for b in range(nb):
-                    xp[l, b] = xp[l - 1, b] * xp[1, b]
-                    ep[l, b] = ep[l - 1, b] * ep[1, b]
-            for i in range(k, -1, -1):
-                c = binom[i + 1]
-                for b in range(nb):
-                    acc[b] += c * xp[i + 1, b] * ep[k - i, b]
+            _level_block(pz[j], nb, k, lo, width, binom, xp, ep, V)
+            for i in range(k + 1):
                 ri = row[i * m + j]
                 if ri >= 0:
-                    for b in range(nb):
-                        buf[ri, b] = acc[b] * g
+                    buf[ri, :nb] = V[i, :nb]
         if nb == block:
             np.dot(buf.T, W, out[t0:t0 + nb])
         else:
