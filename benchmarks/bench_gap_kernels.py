@@ -11,12 +11,19 @@ arrays in one run, with the machine's load average printed:
   search (3e4 samples, the records decimated to 1 kHz) and of a local refit
   (1.5e5 samples), for a soft, a sharp and a wide knee. Also printed: the
   largest relative difference of the coefficients and the two RMS residuals.
+  The same at the reference core's width (25 base columns, with the
+  column-major layout the fitter hands the kernels).
 * **The reference core's active columns**
   (:meth:`fonbw.gap.reference.ReferenceHysteresis.columns` with ``keep=``)
   against the whole matrix and a column copy, as the refits built them
   before, for the diagnosis's reference (16 plays, density degree 6, rate
   variant "both"), a quarter of the columns kept, on 1.5e5 samples; the two
   are equal bit for bit (checked).
+* **The reference core's combinations** (``columns(..., keep=, basis=)``,
+  summed in the play kernel) against the kept columns times the basis, as
+  the joint refits built them before, at the diagnosis's size (44 of 112
+  play columns and the 7 others kept, 24 combinations); the largest
+  difference relative to the largest entry is printed.
 
 Usage::
 
@@ -113,6 +120,47 @@ def bench_knee(repeat):
                   f"(load {os.getloadavg()[0]:.1f})")
 
 
+def bench_knee_wide(repeat):
+    # the reference core's refits: about 25 base columns, column-major
+    rng = np.random.default_rng(2)
+    sat = Saturation(0.0, 10.0)
+    n, th = 150_000, np.array([7.0, 0.3])
+    t = np.linspace(0.0, 30.0, n)
+    z = 5.0 + 5.0 * np.sin(2 * np.pi * 0.5 * t) * np.exp(-t / 20.0)
+    cols = [np.sin(2 * np.pi * f * t + p) for f, p in zip(rng.uniform(0.1, 5.0, 23), rng.uniform(0, 6, 23))]
+    base = np.column_stack([z / 10] + cols + [np.ones(n)])
+    y = z - 0.7 * _numpy_shape(z, th)[0] + rng.normal(0.0, 0.01, n)
+    A = np.asfortranarray(np.column_stack([base, _numpy_shape(0.95 * z + 0.2, th)[0]]))
+    b0, r0 = numpy_fit(A, y, th)
+    b1, r1 = Fitter.fit_linear(A, y, (sat, th))
+    t0 = _best(lambda: numpy_fit(A, y, th), repeat)
+    t1 = _best(lambda: Fitter.fit_linear(A, y, (sat, th)), repeat)
+    print(f"  {n:7d}  {th[0]:.1f}/{th[1]:<5g} {1e3 * t0:7.2f} / {1e3 * t1:6.2f}  {t0 / t1:4.2f}x  "
+          f"RMS {math.sqrt(np.mean(r0 ** 2)):.6f} / {math.sqrt(np.mean(r1 ** 2)):.6f}  "
+          f"({base.shape[1]} base columns; load {os.getloadavg()[0]:.1f})")
+
+
+def bench_combinations(repeat):
+    dt = 2e-4
+    t = np.arange(150_000) * dt
+    u = 60.0 + 50.0 * np.sin(2 * np.pi * 3 * t) * np.exp(-t / 10.0) + 5.0 * np.sin(2 * np.pi * 17 * t)
+    ref = ReferenceHysteresis(rate="both", initial="ascended", degree=5, level=6, u_range=(0.0, 120.0))
+    theta = (1e-5, 0.6)
+    rng = np.random.default_rng(3)
+    keep = np.zeros(ref.n_columns, dtype=bool)
+    keep[rng.choice(ref.n_play_columns, 44, replace=False)] = True
+    keep[ref.n_play_columns:] = True
+    B = rng.standard_normal((int(keep.sum()), 24))
+    want = ref.columns(u, dt, theta, keep=keep) @ B
+    got = ref.columns(u, dt, theta, keep=keep, basis=B)
+    t0 = _best(lambda: ref.columns(u, dt, theta, keep=keep) @ B, repeat)
+    t1 = _best(lambda: ref.columns(u, dt, theta, keep=keep, basis=B), repeat)
+    print(f"reference combinations, {u.size} samples, {int(keep.sum())} kept columns, {B.shape[1]} "
+          f"combinations: kept columns @ basis {1e3 * t0:.1f} ms, summed in the kernel {1e3 * t1:.1f} ms, "
+          f"{t0 / t1:.2f}x (largest difference {np.abs(got - want).max() / np.abs(want).max():.1e} "
+          f"of the largest entry; load {os.getloadavg()[0]:.1f})")
+
+
 def bench_columns(repeat):
     dt = 2e-4
     t = np.arange(150_000) * dt
@@ -135,7 +183,9 @@ def main(argv=None):
     ns = ap.parse_args(argv)
     print(f"load average {os.getloadavg()[0]:.1f}, {os.cpu_count()} cores")
     bench_knee(ns.repeat)
+    bench_knee_wide(max(2, ns.repeat // 3))
     bench_columns(max(2, ns.repeat // 3))
+    bench_combinations(max(2, ns.repeat // 3))
 
 
 if __name__ == "__main__":
