@@ -140,12 +140,17 @@ def bench_knee_wide(repeat):
           f"({base.shape[1]} base columns; load {os.getloadavg()[0]:.1f})")
 
 
-def bench_combinations(repeat):
+def _reference_case():
+    """The diagnosis's reference (16 plays, degree 6, "both") on 1.5e5 samples: (u, dt, ref, theta)."""
     dt = 2e-4
     t = np.arange(150_000) * dt
     u = 60.0 + 50.0 * np.sin(2 * np.pi * 3 * t) * np.exp(-t / 10.0) + 5.0 * np.sin(2 * np.pi * 17 * t)
     ref = ReferenceHysteresis(rate="both", initial="ascended", degree=5, level=6, u_range=(0.0, 120.0))
-    theta = (1e-5, 0.6)
+    return u, dt, ref, (1e-5, 0.6)
+
+
+def bench_combinations(repeat):
+    u, dt, ref, theta = _reference_case()
     rng = np.random.default_rng(3)
     keep = np.zeros(ref.n_columns, dtype=bool)
     keep[rng.choice(ref.n_play_columns, 44, replace=False)] = True
@@ -162,11 +167,7 @@ def bench_combinations(repeat):
 
 
 def bench_columns(repeat):
-    dt = 2e-4
-    t = np.arange(150_000) * dt
-    u = 60.0 + 50.0 * np.sin(2 * np.pi * 3 * t) * np.exp(-t / 10.0) + 5.0 * np.sin(2 * np.pi * 17 * t)
-    ref = ReferenceHysteresis(rate="both", initial="ascended", degree=5, level=6, u_range=(0.0, 120.0))
-    theta = (1e-5, 0.6)
+    u, dt, ref, theta = _reference_case()
     keep = np.random.default_rng(1).random(ref.n_columns) < 0.25
     whole = ref.columns(u, dt, theta)[:, keep]
     assert np.array_equal(whole, ref.columns(u, dt, theta, keep=keep)), "kept columns differ"

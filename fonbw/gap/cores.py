@@ -148,7 +148,8 @@ class ReferenceCore:
         return []
 
     def phi(self, u, dt):
-        """Active columns (q, n) of the reference on input `u` [V] at step `dt` [s]."""
+        """Active columns (q, n) of the reference on input `u` [V] at step `dt` [s]
+        (with a basis, their combinations, made in the reference's play kernel)."""
         P = self.ref.columns(u, dt, self.theta_, keep=self.active, basis=self.basis)
         return np.ascontiguousarray(P.T)
 

@@ -295,18 +295,8 @@ def _combined_kernel(u, r, scale, add, z, k, lo, width, row, W, out):  # pragma:
     n = u.shape[0]
     for t0 in range(0, n, block):
         nb = min(block, n - t0)
-        for b in range(nb):
-            t = t0 + b
-            ut, s, a = u[t], scale[t], add[t]
-            for j in range(m):
-                rj = r[j] * s + a
-                zj = z[j]
-                if zj < ut - rj:
-                    zj = ut - rj
-                elif zj > ut + rj:
-                    zj = ut + rj
-                z[j] = zj
-                pz[j, b] = zj
+        # the block's play states, one row a play (the bank writes a transposed view)
+        _play_kernel(u[t0:t0 + nb], r, scale[t0:t0 + nb], add[t0:t0 + nb], z, pz[:, :nb].T)
         for j in range(m):
             _level_block(pz[j], nb, k, lo, width, binom, xp, ep, V)
             for i in range(k + 1):
