@@ -579,8 +579,11 @@ class ReferenceHysteresis:
         out = np.empty((u.size, basis.shape[1]))
         # kept play column i m + j is row[i m + j] of the play rows of the basis
         row = np.where(plays, np.cumsum(plays) - 1, -1)
-        _combined_kernel(u, self.thresholds, scale, add, z, self.level, lo, hi - lo,
-                         row, np.ascontiguousarray(basis[col[:q][plays]]), out)
+        # the kernel's block products go to scipy's OpenBLAS (numba's np.dot), a
+        # thread pool beside numpy's: one thread, as in fonbw.gap.knee
+        with single_thread():
+            _combined_kernel(u, self.thresholds, scale, add, z, self.level, lo, hi - lo,
+                             row, np.ascontiguousarray(basis[col[:q][plays]]), out)
         rest = col[q:]
         if np.any(rest >= 0):
             # the few other columns, packed, times their rows of the basis
