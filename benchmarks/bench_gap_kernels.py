@@ -97,9 +97,24 @@ def _best(fn, repeat):
     return min(t)
 
 
+def _knee_line(n, z, base, th, rng, repeat, note=""):
+    """Time the numpy and the compiled fit on one synthetic stroke limit; one printed line."""
+    sat = Saturation(0.0, 10.0)
+    y = z - 0.7 * _numpy_shape(z, th)[0] + rng.normal(0.0, 0.01, n)
+    # the block's regressor driven by a slightly wrong nominal output, as in a refit
+    A = np.asfortranarray(np.column_stack([base, _numpy_shape(0.95 * z + 0.2, th)[0]]))
+    b0, r0 = numpy_fit(A, y, th)
+    b1, r1 = Fitter.fit_linear(A, y, (sat, th))
+    t0 = _best(lambda: numpy_fit(A, y, th), repeat)
+    t1 = _best(lambda: Fitter.fit_linear(A, y, (sat, th)), repeat)
+    dif = float(np.max(np.abs(b0 - b1) / np.maximum(np.abs(b0), 1e-12)))
+    print(f"  {n:7d}  {th[0]:.1f}/{th[1]:<5g} {1e3 * t0:7.2f} / {1e3 * t1:6.2f}  {t0 / t1:4.2f}x  "
+          f"{dif:.1e}  {math.sqrt(np.mean(r0 ** 2)):.6f} / {math.sqrt(np.mean(r1 ** 2)):.6f}  "
+          f"({note}load {os.getloadavg()[0]:.1f})")
+
+
 def bench_knee(repeat):
     rng = np.random.default_rng(0)
-    sat = Saturation(0.0, 10.0)
     print("saturation Gauss-Newton: samples, knee/width [µm], numpy / compiled [ms], ratio, "
           "max rel. coefficient difference, RMS numpy / compiled [µm]")
     for n in (30_000, 150_000):
@@ -107,37 +122,18 @@ def bench_knee(repeat):
         z = 5.0 + 5.0 * np.sin(2 * np.pi * 0.5 * t) * np.exp(-t / 20.0)
         base = np.column_stack([z / 10, (z / 10) ** 2, (z / 10) ** 3, np.sin(3 * t), np.ones(n)])
         for th in (np.array([7.0, 0.3]), np.array([8.5, 0.01]), np.array([6.0, 2.0])):
-            y = z - 0.7 * _numpy_shape(z, th)[0] + rng.normal(0.0, 0.01, n)
-            # the block's regressor driven by a slightly wrong nominal output, as in a refit
-            A = np.asfortranarray(np.column_stack([base, _numpy_shape(0.95 * z + 0.2, th)[0]]))
-            b0, r0 = numpy_fit(A, y, th)
-            b1, r1 = Fitter.fit_linear(A, y, (sat, th))
-            t0 = _best(lambda: numpy_fit(A, y, th), repeat)
-            t1 = _best(lambda: Fitter.fit_linear(A, y, (sat, th)), repeat)
-            dif = float(np.max(np.abs(b0 - b1) / np.maximum(np.abs(b0), 1e-12)))
-            print(f"  {n:7d}  {th[0]:.1f}/{th[1]:<5g} {1e3 * t0:7.2f} / {1e3 * t1:6.2f}  {t0 / t1:4.2f}x  "
-                  f"{dif:.1e}  {math.sqrt(np.mean(r0 ** 2)):.6f} / {math.sqrt(np.mean(r1 ** 2)):.6f}  "
-                  f"(load {os.getloadavg()[0]:.1f})")
+            _knee_line(n, z, base, th, rng, repeat)
 
 
 def bench_knee_wide(repeat):
     # the reference core's refits: about 25 base columns, column-major
     rng = np.random.default_rng(2)
-    sat = Saturation(0.0, 10.0)
-    n, th = 150_000, np.array([7.0, 0.3])
+    n = 150_000
     t = np.linspace(0.0, 30.0, n)
     z = 5.0 + 5.0 * np.sin(2 * np.pi * 0.5 * t) * np.exp(-t / 20.0)
     cols = [np.sin(2 * np.pi * f * t + p) for f, p in zip(rng.uniform(0.1, 5.0, 23), rng.uniform(0, 6, 23))]
     base = np.column_stack([z / 10] + cols + [np.ones(n)])
-    y = z - 0.7 * _numpy_shape(z, th)[0] + rng.normal(0.0, 0.01, n)
-    A = np.asfortranarray(np.column_stack([base, _numpy_shape(0.95 * z + 0.2, th)[0]]))
-    b0, r0 = numpy_fit(A, y, th)
-    b1, r1 = Fitter.fit_linear(A, y, (sat, th))
-    t0 = _best(lambda: numpy_fit(A, y, th), repeat)
-    t1 = _best(lambda: Fitter.fit_linear(A, y, (sat, th)), repeat)
-    print(f"  {n:7d}  {th[0]:.1f}/{th[1]:<5g} {1e3 * t0:7.2f} / {1e3 * t1:6.2f}  {t0 / t1:4.2f}x  "
-          f"RMS {math.sqrt(np.mean(r0 ** 2)):.6f} / {math.sqrt(np.mean(r1 ** 2)):.6f}  "
-          f"({base.shape[1]} base columns; load {os.getloadavg()[0]:.1f})")
+    _knee_line(n, z, base, np.array([7.0, 0.3]), rng, repeat, f"{base.shape[1]} base columns; ")
 
 
 def _reference_case():
