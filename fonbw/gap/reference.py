@@ -573,24 +573,23 @@ class ReferenceHysteresis:
         n_kept = int(col.max()) + 1
         if basis.ndim != 2 or basis.shape[0] != n_kept:
             raise ValueError(f"basis needs {n_kept} rows (one per kept column), got shape {basis.shape}")
-        m, q = self.n_plays, self.n_play_columns
+        q = self.n_play_columns
         lo, hi = self._range()
-        plays = col[:q] >= 0
+        # the kept play columns come first among the kept ones: col[:q] numbers
+        # them, and they are the basis's first rows
+        n_plays = int(np.count_nonzero(col[:q] >= 0))
         out = np.empty((u.size, basis.shape[1]))
-        # kept play column i m + j is row[i m + j] of the play rows of the basis
-        row = np.where(plays, np.cumsum(plays) - 1, -1)
         # the kernel's block products go to scipy's OpenBLAS (numba's np.dot), a
         # thread pool beside numpy's: one thread, as in fonbw.gap.knee
         with single_thread():
             _combined_kernel(u, self.thresholds, scale, add, z, self.level, lo, hi - lo,
-                             row, np.ascontiguousarray(basis[col[:q][plays]]), out)
-        rest = col[q:]
-        if np.any(rest >= 0):
-            # the few other columns, packed, times their rows of the basis
-            packed = np.where(rest >= 0, np.cumsum(rest >= 0) - 1, -1)
-            O = np.empty((int(packed.max()) + 1, u.size))  # written a contiguous row a column
-            self._other_columns(u, dt, theta, np.concatenate([np.full(q, -1), packed]), O.T)
-            out += O.T @ basis[rest[rest >= 0]]
+                             col[:q], np.ascontiguousarray(basis[:n_plays]), out)
+        if n_kept > n_plays:
+            # the few other columns, numbered from 0, times the basis's other rows
+            rest = np.where(col[q:] >= 0, col[q:] - n_plays, -1)
+            O = np.empty((n_kept - n_plays, u.size))  # written a contiguous row a column
+            self._other_columns(u, dt, theta, np.concatenate([np.full(q, -1), rest]), O.T)
+            out += O.T @ basis[n_plays:]
         return out
 
     def _scale(self, u, dt, theta):
