@@ -55,8 +55,10 @@ def test_delay_block_integer_and_fractional():
 
 
 def test_creep_columns_closed_form_step():
-    c = fx.Creep(DT, t_max=3.0)
-    assert c.taus == (0.01, 0.1, 1.0)
+    # creep is the slow part of a step response; a mode needs records of half its length
+    assert fx.Creep(DT, t_max=3.0).taus == (0.1, 1.0)
+    c = fx.Creep(DT, t_max=6.0)
+    assert c.taus == (0.1, 1.0, 10.0)
     h = np.r_[0.0, np.ones(999)]
     C = c.columns({"y_ref": h, "dt": DT, "t": np.arange(1000) * DT}, ())
     k = np.arange(1000)
@@ -249,7 +251,7 @@ def test_linear_parameters_are_read_in_design_column_order():
 
     sc = tr.draw_scenario(5, "null", scale=0.25)
     fit = Fitter(sc["train"], search_space("fonbw", sc["train"], N=3))
-    effs = [fx.Saturation(0.0, 20.0), fx.Drift(), fx.Creep(DT, 3.0)]
+    effs = [fx.Saturation(0.0, 20.0), fx.Drift(), fx.Creep(DT, 6.0)]
     sl = fit.lin_slices(effs)
     assert [(x.start, x.stop) for x in sl] == [(9, 10), (7, 9), (4, 7)]
     assert fit.nonneg(effs) == [4, 5, 6]  # creep's gains
@@ -264,7 +266,7 @@ def test_linear_parameters_are_read_in_design_column_order():
     beta = np.arange(10.0)
     p = fit.effect_params({"x": X[0], "th": [t[0] for t in TH], "beta": beta}, effs)
     assert p["saturation"]["c"] == 9.0 and p["drift"] == {"d1_um": 7.0, "d2_um": 8.0}
-    assert p["creep"] == {"g_0.01s": 4.0, "g_0.1s": 5.0, "g_1s": 6.0}
+    assert p["creep"] == {"g_0.1s": 4.0, "g_1s": 5.0, "g_10s": 6.0}
 
 
 def test_noise_floor_ignores_low_frequencies_and_transients():
@@ -805,3 +807,4 @@ def test_refit_on_new_training_histories_is_undone_when_it_fits_the_records_at_r
     d.fit_nominal()
     assert d._rest_mse([1, 2]) == pytest.approx(0.1193, rel=0.01)
     assert math.sqrt(mse(d.val_s, d.p0_va)) == pytest.approx(0.453, abs=0.01)
+
