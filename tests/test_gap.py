@@ -807,4 +807,3 @@ def test_refit_on_new_training_histories_is_undone_when_it_fits_the_records_at_r
     d.fit_nominal()
     assert d._rest_mse([1, 2]) == pytest.approx(0.1193, rel=0.01)
     assert math.sqrt(mse(d.val_s, d.p0_va)) == pytest.approx(0.453, abs=0.01)
-
