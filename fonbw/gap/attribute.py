@@ -622,8 +622,6 @@ class Diagnosis:
         if not self.at_floor and fm.second_chance(self):
             self.localize_residual()
         self.form = fm.check_form(self)
-        if self.form["material"] and fm.relax_reference(self):
-            self.form = fm.check_form(self)
         self.att = self.fonbw_att()
         self.say(f"form: gap closed {self.form['gap_closed']}, "
                  f"{'material' if self.form['material'] else 'not material'}")

@@ -60,10 +60,9 @@ Neither case has an added effect. On "both" a lag block was named on each
 (21030: creep, closing 0.85 of what the reference left; 21003: amplifier,
 0.84). With the relaxations alone an amplifier still closed 0.67 on 21030
 (the plays' viscous lag, which an input lag mimics); on "viscous" with the
-relaxations it closed 0.01 and 0.13, and no lag was named (with creep's
-10-ms mode, since dropped). The diagnosis uses "both", with the
-relaxations once the form is material
-(:data:`fonbw.gap.form.REFERENCE_RELAX`, which says why).
+relaxations it closed 0.01 and 0.13, and no lag was named. The diagnosis
+still uses "both" without relaxations
+(:data:`fonbw.gap.form.REFERENCE_RATE`, which says why).
 
 Why this design (measured, 5 kHz, training on the eq.-19 input over 20 s,
 validation on 5-period sines 60 - 60 cos(2πft) V; RMS [µm]; the reference
