@@ -96,7 +96,10 @@ REFERENCE_DIRECTIONS = 16
 #: Asked only last, to re-judge effects accepted beside a material form, it
 #: took up a real 26.8 σ amplifier on a rate-dependent core (seed 21036): its
 #: θ is searched without the effect and held in the joint refits, so an
-#: amplifier added on top lags the input twice (BENCHMARKS.md).
+#: amplifier added on top lags the input twice (BENCHMARKS.md). Fitted
+#: again with the relaxations once the form was material, it cleared half
+#: the rate-dependent cores' false lags but took the demo bench's creep
+#: (0.1-10 s) into the form and a Preisach core's amplifier with it.
 REFERENCE_RATE = "both"
 REFERENCE_RELAX = ()
 
