@@ -369,6 +369,28 @@ def test_unexplained_verdict_says_where_the_gap_lies_and_which_bounds_bind():
     assert not done["unexplained"] and "lies on" not in done["message"] and "bounds" not in done["message"]
 
 
+def test_retry_pool_keeps_first_step_helpers_that_still_fit_something():
+    from types import SimpleNamespace
+
+    from fonbw.gap.selection import retry_pool
+
+    lib = [SimpleNamespace(name=n) for n in ("creep", "dynamics", "amplifier", "delay", "saturation")]
+    first = [{"effect": "delay", "gap_closed": 0.84}, {"effect": "dynamics", "gap_closed": 0.78},
+             {"effect": "amplifier", "gap_closed": 0.69}, {"effect": "saturation", "gap_closed": 0.09},
+             {"effect": "creep", "gap_closed": 0.014}]
+    # the first step's three best helpers but the one accepted; creep closed too little
+    assert retry_pool([0, 1, 2, 3, 4], lib, 3, first, ["delay"]) == [1, 2, 4]
+    assert retry_pool([0, 1, 2, 3, 4], lib, 3, first, []) == [1, 2]
+    # a later step: the lags' refits on top of delay moved nothing (ΔBIC +23, +25),
+    # the stroke limit's did; with saturation chosen nothing is left to retry
+    step = [{"i": 1, "checks": {"delta_bic": 23.0}}, {"i": 2, "checks": {"delta_bic": 24.9}},
+            {"i": 4, "checks": {"delta_bic": -1.28e4}}]
+    assert retry_pool([1, 2, 4], lib, 4, first, ["delay", "saturation"], step) == []
+    assert retry_pool([1, 2, 4], lib, 4, first, ["delay", "saturation"]) == [1, 2]
+    step[0]["checks"]["delta_bic"] = -0.5
+    assert retry_pool([1, 2, 4], lib, 4, first, ["delay", "saturation"], step) == [1]
+
+
 def test_nominal_at_bounds_reads_linear_and_log_ranges():
     from types import SimpleNamespace
 

@@ -610,7 +610,7 @@ class Diagnosis:
             self.current = {"fit": best["fit"], "eff": best["eff"], "idx": self.current["idx"] + [best["i"]],
                             "mse": best["mse"], "mse_tr": best["fit"]["rms"] ** 2, "pred": best["pv"]}
             self.steps.append({"label": "+" + name, "rms_validate": math.sqrt(best["mse"])})
-            pool = selection.retry_pool(pool, lib, best["i"], self.candidates, self.accepted)
+            pool = selection.retry_pool(pool, lib, best["i"], self.candidates, self.accepted, results)
         self.timing["attribute_s"] = time.perf_counter() - t0
 
     # -- the two nominals --------------------------------------------------

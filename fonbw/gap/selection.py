@@ -56,15 +56,19 @@ def pick_best(results, tie_margin):
     return best
 
 
-def retry_pool(pool, lib, chosen, candidates, accepted):
+def retry_pool(pool, lib, chosen, candidates, accepted, results=()):
     """Library indices the next greedy step tries: of `pool`, without the `chosen`
     index, the effects that helped on their own in the first step.
 
-    Only the three best of them: each retry costs a joint refit.
+    Only the three best of them: each retry costs a joint refit. An effect
+    whose refit in this step's `results` did not lower the training records'
+    information criterion at all (ΔBIC ≥ 0: the joint fit found nothing for
+    its parameters to do on top of the accepted effects) is not tried again.
     """
     helped = [c["effect"] for c in sorted(candidates, key=lambda c: -(c["gap_closed"] or -1.0))
               if (c["gap_closed"] or 0.0) > 0.02 and c["effect"] not in accepted][:3]
-    return [i for i in pool if i != chosen and lib[i].name in helped]
+    idle = {r["i"] for r in results if not r["checks"]["delta_bic"] < 0.0}
+    return [i for i in pool if i != chosen and lib[i].name in helped and i not in idle]
 
 
 def verdict(accepted, candidates, *, mse0, mse, excess0, at_floor, steps, coverage, params,
