@@ -487,7 +487,7 @@ def test_form_stands_when_fonbw_with_the_effects_diverges():
     fit = {"rms": 0.01, "th": [np.zeros(0)]}
     d = SimpleNamespace(sigma2=1e-4, min_gap_closed=0.2, floor_tol=0.2, seed=0, dt=rec.dt, N=3, val_s=[rec],
                         val=[rec], base={"x": np.zeros(5)}, yref_tr=None, yref_va=None, refit_evals=0,
-                        cut_va=lambda p: p, fitter=SimpleNamespace(
+                        cut_va=lambda p: p, map=lambda fn, items: [fn(x) for x in items], fitter=SimpleNamespace(
                             y=np.zeros(5000), nx=5, refit=lambda *a, **k: fit,
                             predict=lambda recs, *a: [np.full(len(r.u), np.inf) for r in recs]),
                         ref_core=SimpleNamespace(n_params=12))
