@@ -391,6 +391,23 @@ def test_retry_pool_keeps_first_step_helpers_that_still_fit_something():
     assert retry_pool([1, 2, 4], lib, 4, first, ["delay", "saturation"], step) == [1]
 
 
+def test_a_rail_passes_the_held_out_records_check_by_a_small_slack_only():
+    from fonbw.gap.checks import loro_passes
+    from fonbw.gap.effects import Clip, Creep, Saturation, library
+
+    clip, creep = Clip(120.0), Creep(2e-4, 10.0)
+    # pooled ratios of true rails (1.009) and of rails that were not there (1.109, 1.248)
+    assert loro_passes({"pooled_ratio": 1.009}, clip.loro_slack)
+    assert not loro_passes({"pooled_ratio": 1.109}, clip.loro_slack)
+    assert not loro_passes({"pooled_ratio": 1.248}, clip.loro_slack)
+    # every other block still needs the held-out records to fit better
+    assert not loro_passes({"pooled_ratio": 1.002}, creep.loro_slack)
+    assert loro_passes({"pooled_ratio": 0.999}, creep.loro_slack) and loro_passes(None)
+    slack = {e.name: e.loro_slack for e in library(2e-4, 120.0, 10.0)}
+    assert slack.pop("clip") == 0.02 and set(slack.values()) == {0.0}
+    assert Saturation.loro_slack == 0.0
+
+
 def test_nominal_at_bounds_reads_linear_and_log_ranges():
     from types import SimpleNamespace
 

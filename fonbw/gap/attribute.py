@@ -536,7 +536,7 @@ class Diagnosis:
             out["bootstrap"] = checks.bootstrap(self.val_s, cur["pred"], pv, sigma2, self.seed)
             out["loro"] = checks.loro(self.att["fitter"], cur["fit"], fit, cur["eff"], eff, self.att["yref_tr"])
         passed = (out["material"] and evident and out["bootstrap"]["p10"] > 0
-                  and (out["loro"] is None or out["loro"]["pooled_ratio"] < 1.0))
+                  and checks.loro_passes(out["loro"], lib[i].loro_slack))
         out["passed"] = bool(passed)
         out["identified"] = bool(lib[i].identified(fit["th"][-1]))
         return out

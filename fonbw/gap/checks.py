@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["CONDITIONS", "AMPLITUDE_TOL", "MIN_DROP", "LATE_SHARE", "LATE_DROP", "coverage", "flag_text",
+__all__ = ["CONDITIONS", "AMPLITUDE_TOL", "MIN_DROP", "LATE_SHARE", "LATE_DROP", "coverage", "flag_text", "loro_passes",
            "remaining", "mse", "bootstrap", "loro"]
 
 
@@ -187,6 +187,13 @@ def bootstrap(records, p0, p1, sigma2, seed, B=400, seg=0.2):
         return {"p05": 0.0, "p10": 0.0, "p50": 0.0}
     return {"p05": float(np.quantile(g, 0.05)), "p10": float(np.quantile(g, 0.1)),
             "p50": float(np.quantile(g, 0.5))}
+
+
+def loro_passes(result, slack=0.0):
+    """Whether a :func:`loro` result lets an effect pass: the held-out records,
+    pooled, do not fit worse with it (ratio below 1 + `slack`, the block's
+    ``loro_slack``), or there was nothing to hold out (None)."""
+    return result is None or result["pooled_ratio"] < 1.0 + slack
 
 
 def loro(fitter, fit_base, fit_eff, eff_base, eff_new, yrefs):

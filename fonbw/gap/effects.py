@@ -94,6 +94,9 @@ class Effect:
     compressive = False
     lin_nonneg = False
     search_seeds = 1
+    #: How far above 1 the pooled leave-one-record-out ratio may lie
+    #: (:func:`fonbw.gap.checks.loro`) for the block to pass.
+    loro_slack = 0.0
 
     def __init__(self):
         self.bounds = []
@@ -412,6 +415,13 @@ class Clip(Effect):
     names = ("level", "knee")
     units = {"level": "V", "knee": "V"}
     input_side = True
+    # A rail acts only where a command reaches it, and a held-out record is
+    # scored only over the displacements the other records span, so the check
+    # sees little of what the rail does: true clips of 0.34-0.97 gap closed
+    # came out at pooled ratios of 1.001-1.009 (held-out seeds 26011, 26026,
+    # 28015, 28039), the clips that were not there at 1.109 and 1.248
+    # (27018, 28032)
+    loro_slack = 0.02
 
     def __init__(self, U):
         super().__init__()
