@@ -36,7 +36,9 @@ split into training and validation sets:
    but one record (on the reference hysteresis its output from the fit on
    every record under one free gain, beside the effect's own gains), the
    effect still lowers the error on the held-out records over the time and
-   the displacements the other records span (leave one record out, pooled).
+   the displacements the other records span (leave one record out, pooled;
+   a clip may leave them up to 2 % worse, its ``loro_slack``: a rail acts
+   only where a command reaches it, which those spans rarely hold).
    Greedy, at
    most ``max_effects`` effects, strongest first; among passing effects that
    close nearly as much (``tie_margin``) the one with the lowest BIC wins
