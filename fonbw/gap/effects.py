@@ -137,11 +137,11 @@ class Creep(Effect):
     g_j [-] solved linearly. Creep is the slow part of a step response. A
     10-ms mode, there before, closed up to 0.89 of what the reference left
     on rate-dependent cores with no effect (their viscous elements lag by
-    3-30 ms): creep was named on 11 of the 80 scenarios of the fifteenth and
-    sixteenth held-out runs that had none, and on one without that mode,
-    every true creep of them as before; the seventeenth run then lost a 43 σ
-    creep beside an amplifier on a rate-dependent core that the mode had
-    found. Faster lags belong to the amplifier and delay blocks or to the
+    3-30 ms) and named creep on 11 of the 80 scenarios of the fifteenth and
+    sixteenth held-out runs that had none; without it creep is named on one
+    of them, and every true creep of those runs is still found. The
+    seventeenth run then lost a 43 σ creep beside an amplifier on a
+    rate-dependent core that the mode had found. Faster lags belong to the amplifier and delay blocks or to the
     form. H_ref is the nominal model's output (the modes are
     small, so driving them by the nominal rather than the refitted output
     changes the fit by second-order terms only). The static gain is unchanged:
