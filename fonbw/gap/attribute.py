@@ -40,7 +40,11 @@ split into training and validation sets:
    a clip may leave them up to 2 % worse, its ``loro_slack``: a rail acts
    only where a command reaches it, which those spans rarely hold).
    Greedy, at
-   most ``max_effects`` effects, strongest first; among passing effects that
+   most ``max_effects`` effects, strongest first; the second step tries on
+   top of the first every effect whose first refit lowered the training BIC,
+   whatever it closed alone (a weaker effect is masked until the stronger one
+   is fitted), later steps the three that closed most
+   (:func:`fonbw.gap.selection.retry_pool`); among passing effects that
    close nearly as much (``tie_margin``) the one with the lowest BIC wins
    (lags of a delay, an amplifier and a resonance look alike on the
    validation sines; the step edges of the training records tell them apart),
@@ -612,7 +616,7 @@ class Diagnosis:
             self.current = {"fit": best["fit"], "eff": best["eff"], "idx": self.current["idx"] + [best["i"]],
                             "mse": best["mse"], "mse_tr": best["fit"]["rms"] ** 2, "pred": best["pv"]}
             self.steps.append({"label": "+" + name, "rms_validate": math.sqrt(best["mse"])})
-            pool = selection.retry_pool(pool, lib, best["i"], self.candidates, self.accepted, results)
+            pool = selection.retry_pool(pool, best["i"], results, first_step=step == 0)
         self.timing["attribute_s"] = time.perf_counter() - t0
 
     # -- the two nominals --------------------------------------------------

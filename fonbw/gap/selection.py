@@ -56,19 +56,26 @@ def pick_best(results, tie_margin):
     return best
 
 
-def retry_pool(pool, lib, chosen, candidates, accepted, results=()):
+def retry_pool(pool, chosen, results, first_step):
     """Library indices the next greedy step tries: of `pool`, without the `chosen`
-    index, the effects that helped on their own in the first step.
+    index, the effects whose refit in this step's `results` found something.
 
-    Only the three best of them: each retry costs a joint refit. An effect
-    whose refit in this step's `results` did not lower the training records'
-    information criterion at all (ΔBIC ≥ 0: the joint fit found nothing for
-    its parameters to do on top of the accepted effects) is not tried again.
+    After the first step every effect whose refit lowered the training
+    records' information criterion (ΔBIC < 0) is tried again, however little
+    of the validation gap it closed on its own: a weaker second effect is
+    masked by the first (an input clip refitted beside an unmodelled drift
+    made the validation error worse), and only a refit on top of the accepted
+    effect shows it. An effect whose refit moved nothing (ΔBIC ≥ 0) is not
+    retried. After a later step only the three that closed most of the gap
+    at that step (and some of it) are tried: each retry costs a joint refit,
+    and a third effect is rarely there.
     """
-    helped = [c["effect"] for c in sorted(candidates, key=lambda c: -(c["gap_closed"] or -1.0))
-              if (c["gap_closed"] or 0.0) > 0.02 and c["effect"] not in accepted][:3]
-    idle = {r["i"] for r in results if not r["checks"]["delta_bic"] < 0.0}
-    return [i for i in pool if i != chosen and lib[i].name in helped and i not in idle]
+    moved = [r for r in results if r["i"] != chosen and r["i"] in pool and r["checks"]["delta_bic"] < 0.0]
+    if not first_step:
+        moved = sorted((r for r in moved if (r["checks"]["gap_closed_step"] or 0.0) > 0.0),
+                       key=lambda r: -r["checks"]["gap_closed_step"])[:3]
+    keep = {r["i"] for r in moved}
+    return [i for i in pool if i in keep]
 
 
 def verdict(accepted, candidates, *, mse0, mse, excess0, at_floor, steps, coverage, params,
