@@ -162,15 +162,17 @@ def _oracles(seed, sc, opt):
 
 
 def _verdict(res):
-    """The fields of the diagnosis' JSON the summary reads (``verdict.form`` may be missing)."""
+    """The fields of the diagnosis' JSON the summary reads (``verdict.form`` may be missing), and
+    the fitted parameters of every first-step candidate and of the named effects, for reading a
+    miss without running it again."""
     d = res.to_dict() if hasattr(res, "to_dict") else dict(res)
     v, nom = d["verdict"], d.get("nominal", {})
     return {"named": list(v["effects"]), "gap_closed": v["gap_closed"], "unexplained": v["unexplained"],
             "at_floor": v.get("at_noise_floor"), "form": v.get("form"),
             "noise_floor": nom.get("noise_floor"), "rms0": nom.get("rms_validate"),
-            "candidates": [{k: c.get(k) for k in ("effect", "gap_closed", "accepted", "checks")}
+            "candidates": [{k: c.get(k) for k in ("effect", "gap_closed", "accepted", "checks", "params")}
                            for c in d.get("candidates", [])],
-            "remaining": v.get("remaining"), "at_bounds": nom.get("at_bounds")}
+            "effect_params": v.get("params"), "remaining": v.get("remaining"), "at_bounds": nom.get("at_bounds")}
 
 
 def run_scenario(seed, budget, options=None):

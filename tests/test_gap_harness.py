@@ -124,8 +124,8 @@ def _stub_diagnose(train, validate, seed=0, budget=0, **kw):
     # the JSON of a diagnosis that does not report the form yet
     return {"verdict": {"effects": ["creep"], "gap_closed": 0.5, "unexplained": False, "at_noise_floor": False},
             "nominal": {"noise_floor": 0.02, "rms_validate": 0.1},
-            "candidates": [{"effect": e, "gap_closed": 0.1, "accepted": e == "creep", "checks": {}}
-                           for e in gs.LIBRARY]}
+            "candidates": [{"effect": e, "gap_closed": 0.1, "accepted": e == "creep", "checks": {},
+                            "params": {"p": float(i)}} for i, e in enumerate(gs.LIBRARY)]}
 
 
 def test_run_scenario_row_and_oracle_cache():
@@ -141,6 +141,8 @@ def test_run_scenario_row_and_oracle_cache():
     assert row["core"]["params"] == sc["core_params"] and row["mid_drive"] == sc["mid_drive"]
     assert row["injected"].keys() == sc["injected"].keys()
     assert row["named"] == ["creep"] and row["form"] is None
+    # each candidate's fitted parameters are kept (reading a miss needs no rerun)
+    assert [c["params"]["p"] for c in row["candidates"]] == list(range(len(gs.LIBRARY)))
     assert (row["unabsorbed"], row["form_excess_sigma"]) == (3.0, 2.4)
     assert row["unabsorbed_effect"] == pytest.approx((3.0 ** 2 - 2.4 ** 2) ** 0.5)
 
