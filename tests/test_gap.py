@@ -394,6 +394,20 @@ def test_retry_pool_keeps_every_effect_the_first_step_found_something_for():
     assert retry_pool([1, 2, 4, 5], 3, second, first_step=False) == [2, 4, 5]
 
 
+def test_a_failed_candidate_says_which_check_it_failed_first():
+    from fonbw.gap.attribute import _failed_check
+
+    # not material: no bootstrap or leave-one-out was run
+    assert _failed_check({"material": False, "delta_bic": -5.6e4}, True) == "closes too little"
+    assert _failed_check({"material": True, "delta_bic": -7.4}, False) == (
+        "training BIC falls by 7.4, not more than 10")
+    boot = {"material": True, "delta_bic": -5.59e4, "bootstrap": {"p10": -0.0123}, "loro": {"pooled_ratio": 0.9}}
+    assert _failed_check(boot, True) == "bootstrap 10th percentile -0.0123"
+    boot["bootstrap"]["p10"] = 0.21
+    boot["loro"]["pooled_ratio"] = 1.0417
+    assert _failed_check(boot, True) == "held-out records fit worse (pooled ratio 1.042)"
+
+
 def test_a_rail_passes_the_held_out_records_check_by_a_small_slack_only():
     from fonbw.gap.checks import loro_passes
     from fonbw.gap.effects import Clip, Creep, Saturation, library

@@ -512,7 +512,8 @@ class Diagnosis:
         ``gap_closed_step``, ``delta_bic`` (training records), ``material``,
         ``bootstrap`` and ``loro`` (only when material with ΔBIC below
         :data:`fonbw.gap.checks.BIC_EVIDENCE`),
-        ``passed``, ``identified``.
+        ``passed``, ``failed`` (the first check failed, in words; None when
+        passed) and ``identified``.
         """
         cur, lib, sigma2 = self.current, self.lib, self.sigma2
         # shares of the gap left by the nominal the effects are attributed on
@@ -544,6 +545,7 @@ class Diagnosis:
         passed = (out["material"] and evident and out["bootstrap"]["p10"] > 0
                   and checks.loro_passes(out["loro"], lib[i].loro_slack))
         out["passed"] = bool(passed)
+        out["failed"] = None if passed else _failed_check(out, evident)
         out["identified"] = bool(lib[i].identified(fit["th"][-1]))
         return out
 
@@ -558,9 +560,9 @@ class Diagnosis:
 
         def said(j, r):
             gc = r[3]["gap_closed_step"] if r[3]["gap_closed_step"] is not None else -math.inf
+            verdict = "passes" if r[3]["passed"] else f"fails: {r[3]['failed']}"
             self.say(f"step {step + 1}: +{self.lib[pool[j]].name}: gap closed {gc:.3f}, ΔBIC "
-                     f"{r[3]['delta_bic']:.3g}, {'passes' if r[3]['passed'] else 'fails'} "
-                     f"({time.perf_counter() - t0:.0f} s)")
+                     f"{r[3]['delta_bic']:.3g}, {verdict} ({time.perf_counter() - t0:.0f} s)")
 
         # the slowest refits first, so that on workers none starts last:
         # an output nonlinearity (Gauss-Newton in every evaluation), then the
@@ -735,6 +737,17 @@ class Diagnosis:
 
 class NominalDiverges(ValueError):
     """The nominal FONBW's prediction of a record is not finite."""
+
+
+def _failed_check(out, evident):
+    """The first of a candidate's checks (:meth:`Diagnosis.check_candidate`'s ``out``) it fails, in words."""
+    if not out["material"]:
+        return "closes too little"
+    if not evident:
+        return f"training BIC falls by {-out['delta_bic']:.3g}, not more than {-checks.BIC_EVIDENCE:g}"
+    if not out["bootstrap"]["p10"] > 0:
+        return f"bootstrap 10th percentile {out['bootstrap']['p10']:.3g}"
+    return f"held-out records fit worse (pooled ratio {out['loro']['pooled_ratio']:.4g})"
 
 
 def _as_records(recs, what):
