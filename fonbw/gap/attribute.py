@@ -744,7 +744,7 @@ def _failed_check(out, evident):
     if not out["material"]:
         return "closes too little"
     if not evident:
-        return f"training BIC falls by {-out['delta_bic']:.3g}, not more than {-checks.BIC_EVIDENCE:g}"
+        return f"ΔBIC {out['delta_bic']:.3g} on the training records, not below {checks.BIC_EVIDENCE:g}"
     if not out["bootstrap"]["p10"] > 0:
         return f"bootstrap 10th percentile {out['bootstrap']['p10']:.3g}"
     return f"held-out records fit worse (pooled ratio {out['loro']['pooled_ratio']:.4g})"
