@@ -396,7 +396,7 @@ def test_retry_pool_keeps_every_effect_the_first_step_found_something_for():
 
 
 def test_a_failed_candidate_says_which_check_it_failed_first():
-    from fonbw.gap.attribute import _failed_check
+    from fonbw.gap.greedy import _failed_check
 
     # not material: no bootstrap or leave-one-out was run
     assert _failed_check({"material": False, "delta_bic": -5.6e4}, True) == "closes too little"

@@ -1,0 +1,215 @@
+"""The greedy attribution steps of a diagnosis: refit each candidate effect on
+top of the accepted ones, check it, accept the best.
+
+:class:`GreedySteps` holds the attribution stage of
+:class:`fonbw.gap.attribute.Diagnosis` (which inherits it; the stage reads the
+diagnosis's records, nominal and attribution context ``att``), kept apart
+because the diagnosis's other stages (nominal, form, verdict) fill a module
+of their own. :func:`fonbw.gap.selection.pick_best` and
+:func:`fonbw.gap.selection.retry_pool` make the choices.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from . import checks
+from . import selection
+from .result import jsonable
+
+__all__ = ["GreedySteps"]
+
+
+class GreedySteps:
+    """Attribution steps of :class:`fonbw.gap.attribute.Diagnosis` (a base class it inherits)."""
+
+    def refit_candidate(self, active, start, att=None):
+        """Refit the `active` library effects (the last is new) jointly with the
+        nominal model, from the configuration `start`, in the attribution
+        context `att` (default: the current one).
+
+        On the FONBW nominal a block is searched from its ``search_seeds``
+        seeds (:class:`fonbw.gap.effects.Effect`) and the best full-rate
+        training fit is kept. Returns (fit, validation predictions,
+        validation MSE [µm²]).
+        """
+        a = self.att if att is None else att
+        eff = [self.lib[i] for i in active]
+        # on the reference only the block's own parameters are searched: four
+        # seeds gave one fit for the amplifier on a Preisach core (seed 24023)
+        n = eff[-1].search_seeds if a["core"] == "fonbw" else 1
+        # the start with the new block's grid tried at the full rate does not
+        # depend on the seed: once for every seed's search
+        grid = self._grid_start(eff, start, a)
+        fits = [self._search_and_polish(eff, start, a, self.seed + 1000 * k, grid) for k in range(n)]
+        fit = min(fits, key=lambda f: f["rms"])  # the first of equals
+        pv = self.cut_va(a["fitter"].predict(self.val, fit, eff, a["yref_va"]))
+        return fit, pv, checks.mse(self.val_s, pv)
+
+    @staticmethod
+    def _grid_start(eff, start, a):
+        """Parameters of effects `eff` to start from (`start`'s, a new block at
+        its first grid point), and the start with the new block's grid tried
+        at the full rate with everything else fixed: (th0, th_s, training cost of th_s)."""
+        fitter, yref_tr = a["fitter"], a["yref_tr"]
+        th0 = [start["th"][j] if j < len(start["th"]) else (e.grid[0] if len(e.names) else np.zeros(0))
+               for j, e in enumerate(eff)]
+        new_i = len(eff) - 1
+        th_s = list(th0)
+        if len(eff[new_i].names):
+            G = eff[new_i].grid
+            X = np.repeat(np.asarray(start["x"])[None, :], len(G), axis=0)
+            TH = [np.repeat(np.asarray(t, dtype=float)[None, :], len(G), axis=0) for t in th_s]
+            TH[new_i] = G
+            c = fitter.cost(X, eff, TH, yref_tr)
+            th_s[new_i] = G[int(np.argmin(c))]
+            c_s = float(np.min(c))
+        else:
+            c_s = float(fitter.cost(np.asarray(start["x"])[None, :], eff,
+                                    [np.asarray(t, dtype=float)[None, :] for t in th_s], yref_tr)[0])
+        return th0, th_s, c_s
+
+    def _search_and_polish(self, eff, start, a, seed, grid):
+        """One refit of effects `eff` from `start` in context `a`: a global
+        search on the decimated records, then a local refit at the full rate
+        from the better of its optimum and the grid start `grid` (:meth:`_grid_start`)."""
+        fitter, yref_tr = a["fitter"], a["yref_tr"]
+        th0, th_s, c_s = grid
+        evals = a["global_evals_outer"] if eff[-1].output_nonlinear else a["global_evals"]
+        fc = a["fitter_c"].refit(eff, start["x"], th0, a["yref_c"], evals=evals,
+                                 seed=seed, new=len(eff) - 1, local=False, popsize=a["popsize"])
+        # the coarse optimum can sit worse at the full rate than the start
+        # itself (the GL sums depend on the step): polish the better of the two
+        c_c = float(fitter.cost(fc["x"][None, :], eff, [t[None, :] for t in fc["th"]], yref_tr)[0])
+        x1, th1 = (fc["x"], fc["th"]) if c_c <= c_s else (np.asarray(start["x"]), th_s)
+        return fitter.refit(eff, x1, th1, yref_tr, evals=self.refit_evals, seed=seed)
+
+    def check_candidate(self, i, step, fit, pv, mse, eff):
+        """The checks of library effect `i` added at greedy `step` (0-based).
+
+        `fit`, `pv`, `mse` are its refit, validation predictions and MSE,
+        `eff` the effect list it was fitted with. Returns the ``checks`` dict:
+        ``gap_closed_step``, ``delta_bic`` (training records), ``material``,
+        ``bootstrap`` and ``loro`` (only when material with ΔBIC below
+        :data:`fonbw.gap.checks.BIC_EVIDENCE`),
+        ``passed``, ``failed`` (the first check failed, in words; None when
+        passed) and ``identified``.
+        """
+        cur, lib, sigma2 = self.current, self.lib, self.sigma2
+        # shares of the gap left by the nominal the effects are attributed on
+        ex = self.att["excess"]
+        gc = (cur["mse"] - mse) / ex if ex > 0 else 0.0
+        if not math.isfinite(gc):
+            gc = -math.inf  # diverged on the validation inputs
+        k = len(lib[i].names) + len(lib[i].lin_names)
+        ntr = len(self.att["fitter"].y)
+        dbic = ntr * math.log(max(fit["rms"] ** 2, 1e-300) / cur["mse_tr"]) + k * math.log(ntr)
+        # the same share on either nominal: a reference that resolves the
+        # density along its plays leaves no loop shape for an output block to
+        # bend, and when two effects share a remainder neither closes half of it
+        need = self.min_gap_closed * (1.0 if step == 0 else 0.5)
+        drop = cur["mse"] - mse
+        # ... or, at a later step, most of what the accepted effects leave: their
+        # joint refits with the nominal take up much of a second effect's trace
+        # on the validation records (an amplifier's lag takes the fast creep
+        # modes), so a creep that takes 0.0377 µm to 0.013 µm (floor 0.012) on
+        # top of an amplifier closes only 0.04 of the first gap
+        late = (step > 0 and drop >= checks.LATE_SHARE * (cur["mse"] - sigma2)
+                and drop >= checks.LATE_DROP * sigma2)
+        out = {"gap_closed_step": gc if math.isfinite(gc) else None, "delta_bic": dbic,
+               "material": bool((gc >= need or late) and drop > checks.MIN_DROP * sigma2)}
+        evident = dbic < checks.BIC_EVIDENCE
+        if out["material"] and evident:
+            out["bootstrap"] = checks.bootstrap(self.val_s, cur["pred"], pv, sigma2, self.seed)
+            out["loro"] = checks.loro(self.att["fitter"], cur["fit"], fit, cur["eff"], eff, self.att["yref_tr"])
+        passed = (out["material"] and evident and out["bootstrap"]["p10"] > 0
+                  and checks.loro_passes(out["loro"], lib[i].loro_slack))
+        out["passed"] = bool(passed)
+        out["failed"] = None if passed else _failed_check(out, evident)
+        out["identified"] = bool(lib[i].identified(fit["th"][-1]))
+        return out
+
+    def try_candidates(self, step, pool, t0):
+        """Refit and check each library effect of `pool` on top of the current
+        configuration, on up to :attr:`workers` processes (:mod:`fonbw.gap.workers`)."""
+        cur = self.current
+
+        def one(i):
+            fit, pv, mse = self.refit_candidate(cur["idx"] + [i], cur["fit"])
+            return fit, pv, mse, self.check_candidate(i, step, fit, pv, mse, cur["eff"] + [self.lib[i]])
+
+        def said(j, r):
+            gc = r[3]["gap_closed_step"] if r[3]["gap_closed_step"] is not None else -math.inf
+            verdict = "passes" if r[3]["passed"] else f"fails: {r[3]['failed']}"
+            self.say(f"step {step + 1}: +{self.lib[pool[j]].name}: gap closed {gc:.3f}, ΔBIC "
+                     f"{r[3]['delta_bic']:.3g}, {verdict} ({time.perf_counter() - t0:.0f} s)")
+
+        # the slowest refits first, so that on workers none starts last:
+        # an output nonlinearity (Gauss-Newton in every evaluation), then the
+        # input-side blocks (the hysteresis simulated again in every evaluation)
+        order = sorted(range(len(pool)), key=lambda j: (not self.lib[pool[j]].output_nonlinear,
+                                                          not self.lib[pool[j]].input_side))
+        items = [pool[j] for j in order]
+        done = self.map(one, items, on_result=lambda k, r: said(order[k], r))
+        by_i = dict(zip(items, done))
+        return [{"i": i, "fit": by_i[i][0], "pv": by_i[i][1], "mse": by_i[i][2], "eff": cur["eff"] + [self.lib[i]],
+                 "checks": by_i[i][3]} for i in pool]
+
+    def _first_step_candidates(self, results):
+        """The ``candidates`` entries of the first greedy step (every effect alone)."""
+        for r in results:
+            # None: the candidate's validation error is not finite (its fit diverges there)
+            gcj = r["checks"]["gap_closed_step"]
+            name = self.lib[r["i"]].name
+            self.candidates.append({
+                "effect": name,
+                "gap_closed": gcj,
+                "rms_validate": math.sqrt(r["mse"]) if math.isfinite(r["mse"]) else None,
+                "accepted": False,
+                "params": self.att["fitter"].effect_params(r["fit"], r["eff"])[name],
+                "checks": jsonable(r["checks"]),
+            })
+
+    def attribute(self):
+        """Greedy steps on the better nominal: add the best passing effect until
+        none passes, the gap reaches the noise floor or ``max_effects`` are accepted."""
+        t0 = time.perf_counter()
+        lib = self.lib
+        a = self.att
+        self.current = {"fit": a["base"], "eff": [], "idx": [], "mse": a["mse"],
+                        "mse_tr": a["base"]["rms"] ** 2, "pred": a["pred"]}
+        self.candidates, self.accepted = [], []
+        self.steps = [{"label": "nominal", "rms_validate": math.sqrt(self.mse0)}]
+        if a["core"] == "reference":
+            self.steps.append({"label": "form", "rms_validate": math.sqrt(a["mse"])})
+        pool = list(range(len(lib)))
+        for step in range(self.max_effects):
+            # an effect is credited only for what the better nominal leaves
+            if self.current["mse"] <= (1.0 + self.floor_tol) * self.sigma2 or not pool:
+                break
+            results = self.try_candidates(step, pool, t0)
+            if step == 0:
+                self._first_step_candidates(results)
+            best = selection.pick_best(results, self.tie_margin)
+            if best is None:
+                break
+            name = lib[best["i"]].name
+            self.accepted.append(name)
+            self.current = {"fit": best["fit"], "eff": best["eff"], "idx": self.current["idx"] + [best["i"]],
+                            "mse": best["mse"], "mse_tr": best["fit"]["rms"] ** 2, "pred": best["pv"]}
+            self.steps.append({"label": "+" + name, "rms_validate": math.sqrt(best["mse"])})
+            pool = selection.retry_pool(pool, best["i"], results, first_step=step == 0)
+        self.timing["attribute_s"] = time.perf_counter() - t0
+
+
+def _failed_check(out, evident):
+    """The first of a candidate's checks (:meth:`Diagnosis.check_candidate`'s ``out``) it fails, in words."""
+    if not out["material"]:
+        return "closes too little"
+    if not evident:
+        return f"ΔBIC {out['delta_bic']:.3g} on the training records, not below {checks.BIC_EVIDENCE:g}"
+    if not out["bootstrap"]["p10"] > 0:
+        return f"bootstrap 10th percentile {out['bootstrap']['p10']:.3g}"
+    return f"held-out records fit worse (pooled ratio {out['loro']['pooled_ratio']:.4g})"
