@@ -399,15 +399,23 @@ def test_a_failed_candidate_says_which_check_it_failed_first():
     from fonbw.gap.greedy import _failed_check
 
     # not material: no bootstrap or leave-one-out was run
-    assert _failed_check({"material": False, "delta_bic": -5.6e4}, True) == "closes too little"
-    assert _failed_check({"material": True, "delta_bic": -7.4}, False) == (
+    assert _failed_check({"material": False, "delta_bic": -5.6e4}) == "closes too little"
+    assert _failed_check({"material": True, "delta_bic": -7.4}) == (
         "ΔBIC -7.4 on the training records, not below -10")
-    assert _failed_check({"material": True, "delta_bic": 33.3}, False).startswith("ΔBIC 33.3 ")
+    assert _failed_check({"material": True, "delta_bic": 33.3}).startswith("ΔBIC 33.3 ")
     boot = {"material": True, "delta_bic": -5.59e4, "bootstrap": {"p10": -0.0123}, "loro": {"pooled_ratio": 0.9}}
-    assert _failed_check(boot, True) == "bootstrap 10th percentile -0.0123"
+    assert _failed_check(boot) == "bootstrap 10th percentile -0.0123"
     boot["bootstrap"]["p10"] = 0.21
     boot["loro"]["pooled_ratio"] = 1.0417
-    assert _failed_check(boot, True) == "held-out records fit worse (pooled ratio 1.042)"
+    assert _failed_check(boot) == "held-out records fit worse (pooled ratio 1.042)"
+    # a true clip's ratio fails without a slack and passes with a clip's 2 %
+    boot["loro"]["pooled_ratio"] = 1.009
+    assert _failed_check(boot) == "held-out records fit worse (pooled ratio 1.009)"
+    assert _failed_check(boot, 0.02) is None
+    boot["loro"]["pooled_ratio"] = 0.97
+    assert _failed_check(boot) is None
+    boot["loro"] = None  # nothing to hold out
+    assert _failed_check(boot) is None
 
 
 def test_a_rail_passes_the_held_out_records_check_by_a_small_slack_only():

@@ -141,9 +141,9 @@ class Creep(Effect):
     sixteenth held-out runs that had none; without it creep is named on one
     of them, and every true creep of those runs is still found. The
     seventeenth run then lost a 43 σ creep beside an amplifier on a
-    rate-dependent core that the mode had found. Faster lags belong to the amplifier and delay blocks or to the
-    form. H_ref is the nominal model's output (the modes are
-    small, so driving them by the nominal rather than the refitted output
+    rate-dependent core that the mode had found. Faster lags belong to the
+    amplifier and delay blocks or to the form. H_ref is the nominal model's
+    output (the modes are small, so driving them by the nominal rather than the refitted output
     changes the fit by second-order terms only). The static gain is unchanged:
     the g_j are the fractions of a step that arrive late, with time constant τ_j.
     A fraction is not negative (``lin_nonneg``): creep moves on in the

@@ -124,10 +124,8 @@ class GreedySteps:
         if out["material"] and evident:
             out["bootstrap"] = checks.bootstrap(self.val_s, cur["pred"], pv, sigma2, self.seed)
             out["loro"] = checks.loro(self.att["fitter"], cur["fit"], fit, cur["eff"], eff, self.att["yref_tr"])
-        passed = (out["material"] and evident and out["bootstrap"]["p10"] > 0
-                  and checks.loro_passes(out["loro"], lib[i].loro_slack))
-        out["passed"] = bool(passed)
-        out["failed"] = None if passed else _failed_check(out, evident)
+        failed = _failed_check(out, lib[i].loro_slack)
+        out["passed"], out["failed"] = failed is None, failed
         out["identified"] = bool(lib[i].identified(fit["th"][-1]))
         return out
 
@@ -204,12 +202,16 @@ class GreedySteps:
         self.timing["attribute_s"] = time.perf_counter() - t0
 
 
-def _failed_check(out, evident):
-    """The first of a candidate's checks (:meth:`Diagnosis.check_candidate`'s ``out``) it fails, in words."""
+def _failed_check(out, slack=0.0):
+    """The first of a candidate's checks (:meth:`Diagnosis.check_candidate`'s
+    ``out``) it fails, in words, or None when it passes them all (`slack`:
+    the block's ``loro_slack``). The one place the checks are combined."""
     if not out["material"]:
         return "closes too little"
-    if not evident:
+    if not out["delta_bic"] < checks.BIC_EVIDENCE:
         return f"ΔBIC {out['delta_bic']:.3g} on the training records, not below {checks.BIC_EVIDENCE:g}"
     if not out["bootstrap"]["p10"] > 0:
         return f"bootstrap 10th percentile {out['bootstrap']['p10']:.3g}"
-    return f"held-out records fit worse (pooled ratio {out['loro']['pooled_ratio']:.4g})"
+    if not checks.loro_passes(out["loro"], slack):
+        return f"held-out records fit worse (pooled ratio {out['loro']['pooled_ratio']:.4g})"
+    return None
