@@ -142,6 +142,26 @@ def test_relaxation_column_is_the_lag_of_a_step_in_closed_form():
     assert ref.names[-1] == "relax0.005s" and ref.bounds[0][-1] == 0.0
 
 
+def test_fractional_column_with_a_memory_is_the_truncated_sum_of_a_step():
+    # D^mu of a step A at sample 1: dt^-mu A sum_{k<=m} (-1)^k C(mu, k)
+    # = dt^-mu A (-1)^m C(mu - 1, m), m = n - 1 up to the window L, then held
+    from scipy.special import binom
+
+    mu, A, L = 0.3, 90.0, 100
+    ref = ReferenceHysteresis(n_plays=2, degree=1, level=0, rate="fractional", u_range=(0.0, 120.0),
+                              memory=L * DT)
+    u = np.r_[0.0, np.full(400, A)]
+    col = ref.columns(u, DT, (mu,))[:, -1]
+    m = np.minimum(np.arange(1, 401) - 1, L)
+    closed = DT ** -mu * A * (-1.0) ** m * binom(mu - 1.0, m)
+    np.testing.assert_allclose(col, np.r_[0.0, closed], rtol=1e-10)
+    # the whole memory keeps decaying past the window (a power law, as creep)
+    full = ReferenceHysteresis(n_plays=2, degree=1, level=0, rate="fractional", u_range=(0.0, 120.0))
+    assert full.columns(u, DT, (mu,))[-1, -1] < 0.75 * col[-1]
+    with pytest.raises(ValueError, match="memory"):
+        ReferenceHysteresis(memory=0.0)
+
+
 def test_viscous_widening_adds_gamma_times_rate_on_a_steady_ramp():
     # a fall 120 -> 0 V and a rise back at v V/s: at the top every play sits at
     # u - (r + gamma v), the filtered rate (time constant 10 ms) long settled

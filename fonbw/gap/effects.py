@@ -129,6 +129,10 @@ class Effect:
         return d
 
 
+#: Time constants [s] of the creep block's modes (those the records cover).
+CREEP_TAUS = (0.1, 1.0, 10.0)
+
+
 class Creep(Effect):
     """Creep: first-order modes driven by the model output.
 
@@ -157,7 +161,7 @@ class Creep(Effect):
 
     def __init__(self, dt, t_max):
         super().__init__()
-        taus = [tau for tau in (0.1, 1.0, 10.0) if tau <= 2.0 * t_max and tau >= 20 * dt]
+        taus = [tau for tau in CREEP_TAUS if tau <= 2.0 * t_max and tau >= 20 * dt]
         self.taus = tuple(taus or [max(20 * dt, t_max / 4)])
         self.lin_names = tuple(f"g_{tau:g}s" for tau in self.taus)
         self.units = {k: "1" for k in self.lin_names}

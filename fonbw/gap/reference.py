@@ -44,6 +44,12 @@ dependence:
     threshold; the multiplicative law widens the small thresholds hardly at
     all.
 
+``memory=T`` cuts the fractional column's memory to the last T seconds
+(the short-memory Grünwald–Letnikov sum). With the whole record as memory
+and a small μ, D^μ of a step decays as t^-μ ≈ 1 − μ ln t: a logarithmic
+creep, which the diagnosis attributes to its creep block, not to the loop's
+rate dependence (:data:`fonbw.gap.form.REFERENCE_MEMORY`).
+
 ``relax=(τ_1, …)`` adds relaxation columns lag_τ(x) − x (a first-order lag
 started at rest at the first sample), weights ≥ 0: a reversible part whose
 stroke drops with frequency (a spring and a damper in series, beside the
@@ -375,12 +381,16 @@ class ReferenceHysteresis:
         from the training records by :meth:`fit` (or :meth:`with_range`).
     relax : sequence of float
         Time constants τ [s] of relaxation columns lag_τ(x) − x (weights ≥ 0).
+    memory : float, optional
+        Length [s] of the fractional column's memory (the short-memory
+        Grünwald–Letnikov sum over that window); None: from the record's
+        first sample.
     """
 
     def __init__(self, n_plays: int = 16, degree: int = 3, rate: str | None = None,
                  initial: str = "rest", burn_in: float | None = None, offset: bool = True,
                  level: int = 2, rate_tau: float = 0.01, u_range: tuple | None = None,
-                 relax: tuple = ()):
+                 relax: tuple = (), memory: float | None = None):
         if int(n_plays) != n_plays or n_plays < 1:
             raise ValueError(f"n_plays must be a positive integer, got {n_plays!r}")
         if int(degree) != degree or degree < 0:
@@ -400,6 +410,9 @@ class ReferenceHysteresis:
         if not all(math.isfinite(t) and t > 0 for t in relax):
             raise ValueError(f"relax must be positive time constants [s], got {relax!r}")
         self.relax = relax
+        if memory is not None and not (math.isfinite(memory) and memory > 0):
+            raise ValueError(f"memory must be a positive duration [s] or None, got {memory!r}")
+        self.memory = None if memory is None else float(memory)
         self.u_range = None
         if u_range is not None:
             lo, hi = (float(a) for a in u_range)
@@ -411,7 +424,7 @@ class ReferenceHysteresis:
         return (f"ReferenceHysteresis(n_plays={self.n_plays}, degree={self.degree}, rate={self.rate!r}, "
                 f"initial={self.initial!r}, burn_in={self.burn_in!r}, offset={self.offset}, "
                 f"level={self.level}, rate_tau={self.rate_tau!r}, u_range={self.u_range!r}, "
-                f"relax={self.relax!r})")
+                f"relax={self.relax!r}, memory={self.memory!r})")
 
     def with_range(self, records_or_range) -> "ReferenceHysteresis":
         """A copy whose grid is sized on ``(low, high)`` [V] or on records' inputs."""
@@ -422,7 +435,7 @@ class ReferenceHysteresis:
             recs = _as_list(records_or_range)
             rng = (min(float(np.min(r.u)) for r in recs), max(float(np.max(r.u)) for r in recs))
         return ReferenceHysteresis(self.n_plays, self.degree, self.rate, self.initial, self.burn_in,
-                                   self.offset, self.level, self.rate_tau, rng, self.relax)
+                                   self.offset, self.level, self.rate_tau, rng, self.relax, self.memory)
 
     # -- layout -------------------------------------------------------------
 
@@ -560,7 +573,9 @@ class ReferenceHysteresis:
         if "mu" in self.theta_names and col[q + self.degree + 1 - first] >= 0:
             # measured from the first sample, so that a record starting away
             # from 0 V does not see a step at t = 0
-            out[:, col[q + self.degree + 1 - first]] = apply_op(make_op(theta[-1], dt, "fast"), u - u[0])
+            op = (make_op(theta[-1], dt, "fast") if self.memory is None
+                  else make_op(theta[-1], dt, "short", L=max(1, round(self.memory / dt))))
+            out[:, col[q + self.degree + 1 - first]] = apply_op(op, u - u[0])
         for j, tau in enumerate(self.relax):
             c = col[self.n_columns - len(self.relax) + j]
             if c >= 0:
