@@ -221,7 +221,7 @@ def test_numba_cache_key_follows_the_compiled_sources_only(tmp_path):
     for rel in ("cli/main.py", "loop/run.py", "gap/attribute.py"):   # no compiled code there
         (pkg / rel).write_text((pkg / rel).read_text() + "\n# edited\n")
     assert fonbw._kernel_sources_digest(str(pkg), "0.68.1") == key
-    for rel in ("fractional/weights.py", "hysteresis/models.py", "plant.py", "gap/reference.py"):
+    for rel in ("fractional/weights.py", "hysteresis/models.py", "plant.py", "gap/plays.py"):
         src = (pkg / rel).read_text()
         (pkg / rel).write_text(src + "\n# edited\n")
         assert fonbw._kernel_sources_digest(str(pkg), "0.68.1") != key, rel
