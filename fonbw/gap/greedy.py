@@ -106,20 +106,9 @@ class GreedySteps:
         k = len(lib[i].names) + len(lib[i].lin_names)
         ntr = len(self.att["fitter"].y)
         dbic = ntr * math.log(max(fit["rms"] ** 2, 1e-300) / cur["mse_tr"]) + k * math.log(ntr)
-        # the same share on either nominal: a reference that resolves the
-        # density along its plays leaves no loop shape for an output block to
-        # bend, and when two effects share a remainder neither closes half of it
-        need = self.min_gap_closed * (1.0 if step == 0 else 0.5)
         drop = cur["mse"] - mse
-        # ... or, at a later step, most of what the accepted effects leave: their
-        # joint refits with the nominal take up much of a second effect's trace
-        # on the validation records (an amplifier's lag takes the fast creep
-        # modes), so a creep that takes 0.0377 µm to 0.013 µm (floor 0.012) on
-        # top of an amplifier closes only 0.04 of the first gap
-        late = (step > 0 and drop >= checks.LATE_SHARE * (cur["mse"] - sigma2)
-                and drop >= checks.LATE_DROP * sigma2)
         out = {"gap_closed_step": gc if math.isfinite(gc) else None, "delta_bic": dbic,
-               "material": bool((gc >= need or late) and drop > checks.MIN_DROP * sigma2)}
+               "material": checks.material(step, gc, drop, cur["mse"] - sigma2, sigma2, self.min_gap_closed)}
         evident = dbic < checks.BIC_EVIDENCE
         if out["material"] and evident:
             out["bootstrap"] = checks.bootstrap(self.val_s, cur["pred"], pv, sigma2, self.seed)
