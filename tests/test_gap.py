@@ -395,6 +395,29 @@ def test_retry_pool_keeps_every_effect_the_first_step_found_something_for():
     assert retry_pool([1, 2, 4, 5], 3, second, first_step=False) == [2, 4, 5]
 
 
+def test_the_passing_candidate_with_the_best_training_fit_is_accepted():
+    from fonbw.gap.selection import pick_best
+
+    def cand(name, gc, dbic, passed=True, identified=True):
+        return {"name": name, "checks": {"passed": passed, "gap_closed_step": gc, "delta_bic": dbic,
+                                         "identified": identified}}
+
+    # a 65 σ drift on a FONBW core (blind harness, seed 31017): the amplifier
+    # closed more of the validation gap, the drift fitted the training far better
+    res = [cand("amplifier", 0.830, -5.32e4), cand("drift", 0.578, -1.62e5), cand("creep", 0.545, -9.05e4),
+           cand("saturation", 0.066, -9.56e3, passed=False)]
+    assert pick_best(res)["name"] == "drift"
+    assert pick_best(res, tie_margin=0.05)["name"] == "amplifier"  # the validation share alone
+    # a failed candidate never wins, whatever its training fit
+    res.append(cand("clip", 0.9, -1e6, passed=False))
+    assert pick_best(res)["name"] == "drift"
+    # a resonance that is only a lag yields to an identified block
+    lag = [cand("dynamics", 0.90, -2e5, identified=False), cand("amplifier", 0.88, -1.7e5)]
+    assert pick_best(lag)["name"] == "amplifier"
+    assert pick_best([cand("dynamics", 0.9, -2e5, identified=False)])["name"] == "dynamics"
+    assert pick_best([cand("drift", 0.5, -1e5, passed=False)]) is None
+
+
 def test_a_failed_candidate_says_which_check_it_failed_first():
     from fonbw.gap.greedy import _failed_check
 

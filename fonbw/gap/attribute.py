@@ -44,14 +44,14 @@ split into training and validation sets:
    top of the first every effect whose first refit lowered the training BIC,
    whatever it closed alone (a weaker effect is masked until the stronger one
    is fitted), later steps the three that closed most
-   (:func:`fonbw.gap.selection.retry_pool`); among passing effects that
-   close nearly as much (``tie_margin``) the one with the lowest BIC wins
-   (lags of a delay, an amplifier and a resonance look alike on the
-   validation sines; the step edges of the training records tell them apart),
-   and a block whose fit degenerates into another effect (a resonance above
-   the Nyquist frequency or at its damping bound is only a lag) yields to a
-   tied block that is identified, or to an identified passing block with a
-   lower training BIC. Validation
+   (:func:`fonbw.gap.selection.retry_pool`); among passing effects the one
+   with the lowest training BIC wins (the validation share rests on a few
+   records, partly beyond the training range, and lags of a delay, an
+   amplifier and a resonance look alike on the validation sines; the step
+   edges of the training records tell them apart), and a block whose fit
+   degenerates into another effect (a resonance above the Nyquist frequency
+   or at its damping bound is only a lag) yields to one that is identified.
+   Validation
    conditions the training records never covered (amplitude, rate,
    frequency, hold length) are flagged.
 
@@ -108,7 +108,7 @@ __all__ = ["diagnose", "Diagnosis"]
 
 def diagnose(train_records, validate_records, model=None, seed=0, progress=False, budget=1000,
              refit_evals=90, global_evals=None, coarse_rate=1000.0, effects=fx.EFFECTS, max_effects=3,
-             min_gap_closed=0.2, floor_tol=0.2, tie_margin=0.05, N=3, memory="fast", workers=None):
+             min_gap_closed=0.2, floor_tol=0.2, tie_margin=math.inf, N=3, memory="fast", workers=None):
     """Diagnose the gap between the nominal FONBW model and measured records.
 
     Parameters
@@ -152,7 +152,8 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
         The gap is at the noise floor when MSE0 ≤ (1 + floor_tol) σ².
     tie_margin : float
         Passing effects that close at least the best one's gap_closed minus
-        this margin are tied; the lowest training BIC among them wins.
+        this margin compete; the lowest training BIC among them wins. By
+        default every passing effect competes.
     N : int
         Order of g(u) of the nominal model.
     memory : str
@@ -196,7 +197,7 @@ class Diagnosis(GreedySteps):
     def __init__(self, train_records, validate_records, model=None, seed=0, progress=False,
                  budget=1000, refit_evals=90, global_evals=None, coarse_rate=1000.0,
                  effects=fx.EFFECTS, max_effects=3, min_gap_closed=0.2, floor_tol=0.2,
-                 tie_margin=0.05, N=3, memory="fast", workers=None):
+                 tie_margin=math.inf, N=3, memory="fast", workers=None):
         from ..identify import search_space
 
         self.t_start = time.perf_counter()
