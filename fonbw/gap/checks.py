@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["CONDITIONS", "AMPLITUDE_TOL", "MIN_DROP", "LATE_SHARE", "LATE_DROP", "material", "coverage", "flag_text", "loro_passes",
-           "remaining", "mse", "bootstrap", "loro"]
+__all__ = ["CONDITIONS", "AMPLITUDE_TOL", "MIN_DROP", "LATE_SHARE", "LATE_DROP", "material", "coverage",
+           "flag_text", "loro_passes", "remaining", "mse", "bootstrap", "loro"]
 
 
 #: What each :func:`coverage` condition measures, and its unit.

@@ -45,14 +45,14 @@ def pick_best(results, tie_margin=math.inf):
     # resonance close nearly the same part of the validation sines, which
     # only the training records' step edges tell apart. ΔBIC charges every
     # parameter.
-    tied = [r for r in ok if r["checks"]["gap_closed_step"] >= best["checks"]["gap_closed_step"] - tie_margin]
+    competing = [r for r in ok if r["checks"]["gap_closed_step"] >= best["checks"]["gap_closed_step"] - tie_margin]
     # a block whose fit degenerates into another effect (a "resonance"
-    # above the Nyquist frequency is a lag) yields to a tied one that is
-    # identified
-    best = min(tied, key=lambda r: (not r["checks"]["identified"], r["checks"]["delta_bic"]))
-    # ... and, untied, to an identified passing block that fits the
-    # training records better: a lag the resonance block imitates is
-    # no evidence of a resonance
+    # above the Nyquist frequency is a lag) yields to a competing one that
+    # is identified
+    best = min(competing, key=lambda r: (not r["checks"]["identified"], r["checks"]["delta_bic"]))
+    # ... and, with a finite margin, to any identified passing block that
+    # fits the training records better: a lag the resonance block imitates
+    # is no evidence of a resonance
     if not best["checks"]["identified"]:
         alt = [r for r in ok if r["checks"]["identified"]
                and r["checks"]["delta_bic"] < best["checks"]["delta_bic"]]
