@@ -355,7 +355,7 @@ def test_unexplained_verdict_says_where_the_gap_lies_and_which_bounds_bind():
     flag = {"condition": "rate_p99", "train": 2190.0, "validate": 7537.0, "record": "sine20"}
     left = [{"record": "sine20", "share": 0.95, "rms": 2.75, "outside": [flag]},
             {"record": "steps", "share": 0.05, "rms": 0.31, "outside": []}]
-    kw = dict(candidates=[], mse0=0.58, excess0=0.58, at_floor=False, steps=[], coverage=[flag], params={})
+    kw = dict(mse0=0.58, excess0=0.58, at_floor=False, steps=[], coverage=[flag], params={})
     v = verdict([], mse=0.58, remaining=left, at_bounds=["n", "lam2"], **kw)
     assert v["unexplained"] and v["remaining"] == left
     assert "95 % of the gap left lies on sine20" in v["message"]
@@ -367,6 +367,30 @@ def test_unexplained_verdict_says_where_the_gap_lies_and_which_bounds_bind():
     assert "lies on" not in verdict([], mse=0.58, remaining=[{**r, "share": 0.4} for r in left], **kw)["message"]
     done = verdict([], mse=0.01, remaining=left, at_bounds=["n"], **kw)
     assert not done["unexplained"] and "lies on" not in done["message"] and "bounds" not in done["message"]
+
+
+def test_effects_are_listed_strongest_first_in_the_order_they_were_accepted():
+    from fonbw.gap.selection import pick_best, verdict
+
+    def cand(name, gc, dbic, identified=True):
+        return {"effect": name, "checks": {"passed": True, "gap_closed_step": gc, "delta_bic": dbic,
+                                           "identified": identified}}
+
+    # first steps of two spent blind-harness scenarios: a Preisach core with a
+    # 62 σ amplifier (seed 33036) and a FONBW core with an 8.6 σ delay (33034);
+    # the delay and a resonance at its damping bound close the most alone
+    preisach = [cand("delay", 0.892, -83011), cand("dynamics", 0.837, -87692, False),
+                cand("amplifier", 0.686, -91727)]
+    fonbw = [cand("dynamics", 0.875, -86550, False), cand("delay", 0.875, -79435),
+             cand("amplifier", 0.812, -75037)]
+    assert pick_best(preisach)["effect"] == "amplifier" and pick_best(fonbw)["effect"] == "delay"
+    steps = [{"label": "nominal", "rms_validate": 0.5}, {"label": "+amplifier", "rms_validate": 0.1},
+             {"label": "+delay", "rms_validate": 0.05}]
+    v = verdict(["amplifier", "delay"], mse0=0.25, mse=0.0025, excess0=0.249, at_floor=False, steps=steps,
+                coverage=[], params={})
+    assert v["effects"] == ["amplifier", "delay"]
+    assert [w["step"] for w in v["waterfall"]] == ["nominal", "+amplifier", "+delay"]
+    assert v["gap_closed"] == pytest.approx((0.25 - 0.0025) / 0.249)
 
 
 def test_retry_pool_keeps_every_effect_the_first_step_found_something_for():

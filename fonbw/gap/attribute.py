@@ -492,7 +492,7 @@ class Diagnosis(GreedySteps):
         self.candidates.sort(key=lambda c: -(c["gap_closed"] if c["gap_closed"] is not None else -math.inf))
         self.steps.append({"label": "noise floor", "rms_validate": math.sqrt(self.sigma2)})
         verdict = selection.verdict(
-            self.accepted, self.candidates, mse0=self.mse0, mse=self.current["mse"], excess0=self.excess0,
+            self.accepted, mse0=self.mse0, mse=self.current["mse"], excess0=self.excess0,
             at_floor=self.at_floor, steps=self.steps, coverage=self.coverage,
             params=self.att["fitter"].effect_params(self.current["fit"], self.current["eff"]),
             form=self.form, start=self.rs.report(),

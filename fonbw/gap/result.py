@@ -33,7 +33,7 @@ class DiagnosisResult(Mapping):
         ``gap_closed``, ``rms_validate`` [µm], ``accepted``, ``params``,
         ``checks``.
     verdict : dict
-        ``effects`` (accepted, strongest first), ``gap_closed``,
+        ``effects`` (accepted, strongest first: in the order of acceptance), ``gap_closed``,
         ``unexplained``, ``at_noise_floor``, ``steps`` (the waterfall),
         ``coverage``, ``params``, ``message``.
     timing : dict
@@ -57,7 +57,7 @@ class DiagnosisResult(Mapping):
 
     @property
     def effects(self):
-        """Accepted effects, strongest first (list of str)."""
+        """Accepted effects, strongest first: in the order of acceptance (list of str)."""
         return self.verdict["effects"]
 
     @property
