@@ -123,6 +123,9 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         ``form``, ``start``, ``coverage``, ``remaining``, ``params``, ``message``.
     """
     total = (mse0 - mse) / excess0 if excess0 > 0 and not at_floor else 0.0
+    # the waterfall counts from the nominal's RMS as it reports it, so that the
+    # nominal's own share is 0, not the rounding of sqrt(MSE0)² (−1.3e-16)
+    base = steps[0]["rms_validate"] ** 2 if steps else mse0
     # strongest first is the order of acceptance, the waterfall's: each step
     # takes the passing effect with the best training evidence on top of the
     # ones before (:func:`pick_best`). Sorted by what each closes of the
@@ -141,7 +144,7 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         "at_noise_floor": bool(at_floor),
         "steps": steps,
         "waterfall": [{"step": st["label"], "rms_validate": st["rms_validate"],
-                       "gap_closed_cum": (float((mse0 - st["rms_validate"] ** 2) / excess0)
+                       "gap_closed_cum": (float((base - st["rms_validate"] ** 2) / excess0)
                                           if excess0 > 0 else 0.0)} for st in steps],
         "form": form,
         "start": start,
