@@ -390,9 +390,10 @@ class Saturation(Effect):
     #: displacement; a top that only bends is loop shape, the hysteresis
     #: form's, which the reference nominal's envelope follows only in part.
     #: Measured on the accepted saturations of 160 blind-harness scenarios
-    #: (seeds 29000-29039, 30000-31039, 32000-32039): the nine injected ones
-    #: dropped the slope by 0.78-1.42, the ten on cores without one (the
-    #: Preisach and Prandtl-Ishlinskii cores' envelopes) by 0.04-0.57.
+    #: (seeds 29000-29039, 30000-31039, 32000-32039), alone on the nominal:
+    #: the nine injected ones dropped the slope by 0.78-1.42, the ten where
+    #: none was material (the Preisach and Prandtl-Ishlinskii cores'
+    #: envelopes) by 0.04-0.57.
     min_drop = 2.0 / 3.0
 
     def __init__(self, y_lo, y_hi):
