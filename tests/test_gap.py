@@ -390,12 +390,17 @@ def test_effects_are_listed_strongest_first_in_the_order_they_were_accepted():
                 coverage=[], params={})
     assert v["effects"] == ["amplifier", "delay"]
     assert [w["step"] for w in v["waterfall"]] == ["nominal", "+amplifier", "+delay"]
+    assert v["gap_closed"] == pytest.approx((0.25 - 0.0025) / 0.249)
+
+
+def test_the_waterfall_starts_from_exactly_zero_at_the_nominal():
+    from fonbw.gap.selection import verdict
+
     # the demo bench's nominal, whose RMS squared is not its MSE to the last bit
     assert math.sqrt(0.43086) ** 2 != 0.43086
     demo = verdict([], mse0=0.43086, mse=0.1, excess0=0.43086 - 0.015 ** 2, at_floor=False, coverage=[], params={},
                    steps=[{"label": "nominal", "rms_validate": math.sqrt(0.43086)}])
     assert demo["waterfall"][0]["gap_closed_cum"] == 0.0
-    assert v["gap_closed"] == pytest.approx((0.25 - 0.0025) / 0.249)
 
 
 def test_retry_pool_keeps_every_effect_the_first_step_found_something_for():

@@ -126,7 +126,8 @@ class Effect:
         """Why fitted `params` (:meth:`describe`) are not this block's effect
         but something it imitates, in words; None when they are its own.
 
-        A candidate refused this way fails its checks, however much it closes.
+        A candidate refused this way fails its checks, however much it closes
+        (:meth:`identified` only ranks it behind a competing block).
         """
         return None
 
