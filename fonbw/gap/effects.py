@@ -79,6 +79,10 @@ class Effect:
         only lower the output's slope).
     lin_nonneg : bool
         The gains of ``lin_names`` are bounded below by 0.
+    lag : bool
+        The block slows a step of the command (a delay, a lag, a resonance):
+        the share of a step it lets through within the step's own sample is
+        checked against the records' step edges (:mod:`fonbw.gap.edges`).
     search_seeds : int
         Seeds the block's refit on the FONBW nominal runs from (search and
         polish each; the best training fit at the full rate is kept).
@@ -93,6 +97,7 @@ class Effect:
     output_nonlinear = False
     compressive = False
     lin_nonneg = False
+    lag = False
     search_seeds = 1
     #: How far above 1 the pooled leave-one-record-out ratio may lie
     #: (:func:`fonbw.gap.checks.loro`) for the block to pass.
@@ -213,6 +218,7 @@ class Dynamics(Effect):
     name = "dynamics"
     names = ("f_res", "zeta")
     units = {"f_res": "Hz", "zeta": "1"}
+    lag = True
 
     def __init__(self, dt):
         super().__init__()
@@ -273,6 +279,7 @@ class Delay(Effect):
     names = ("delay",)
     units = {"delay": "s"}
     input_side = True
+    lag = True
 
     def __init__(self, dt):
         super().__init__()
@@ -325,6 +332,7 @@ class Amplifier(Effect):
     names = ("f_c", "slew")
     units = {"f_c": "Hz", "slew": "V/s"}
     input_side = True
+    lag = True
     # The global search sees decimated records, where the slew limit hardly
     # shows, so the valley the full-rate polish ends in depends on the
     # search's draw: on a FONBW core with an amplifier (blind harness, seed
