@@ -867,6 +867,7 @@ def test_an_effect_needs_a_bic_drop_of_more_than_ten_on_the_training_records(mon
 
     from fonbw.gap import checks
     from fonbw.gap.attribute import Diagnosis
+    from fonbw.gap.edges import StepEdges
 
     monkeypatch.setattr(checks, "bootstrap", lambda *a: {"p05": 0.2, "p10": 0.3, "p50": 0.4})
     monkeypatch.setattr(checks, "loro", lambda *a: {"ratios": [0.5], "pooled_ratio": 0.5})
@@ -874,7 +875,8 @@ def test_an_effect_needs_a_bic_drop_of_more_than_ten_on_the_training_records(mon
     block = SimpleNamespace(name="a", names=("a", "b"), lin_names=(), identified=lambda th: True, loro_slack=0.0,
                             refuses=lambda params: None, lag=False)
     me = SimpleNamespace(current={"mse": 0.02, "mse_tr": mse_tr, "pred": None, "fit": None, "eff": []},
-                         lib=[block], sigma2=0.001, min_gap_closed=0.2, val_s=None, seed=0, candidates=[], edges=None,
+                         lib=[block], sigma2=0.001, min_gap_closed=0.2, val_s=None, seed=0, candidates=[],
+                         edges=StepEdges([], 1e-4, 1.0),
                          att={"excess": 0.019, "fitter": SimpleNamespace(y=np.zeros(n), effect_params=lambda fit, eff: {"a": {}}),
                               "yref_tr": None})
 
@@ -905,6 +907,7 @@ def test_a_saturation_that_only_bends_the_top_of_the_loop_is_refused(monkeypatch
 
     from fonbw.gap import checks
     from fonbw.gap.attribute import Diagnosis
+    from fonbw.gap.edges import StepEdges
     from fonbw.gap.effects import Saturation
 
     monkeypatch.setattr(checks, "bootstrap", lambda *a: {"p05": 0.2, "p10": 0.3, "p50": 0.4})
@@ -918,7 +921,8 @@ def test_a_saturation_that_only_bends_the_top_of_the_loop_is_refused(monkeypatch
 
     c_now = {"c": 0.0}
     me = SimpleNamespace(current={"mse": 0.02, "mse_tr": 0.01, "pred": None, "fit": None, "eff": []},
-                         lib=[sat], sigma2=0.001, min_gap_closed=0.2, val_s=None, seed=0, candidates=[], edges=None,
+                         lib=[sat], sigma2=0.001, min_gap_closed=0.2, val_s=None, seed=0, candidates=[],
+                         edges=StepEdges([], 1e-4, 1.0),
                          att={"excess": 0.019, "yref_tr": None, "fitter": SimpleNamespace(
                              y=np.zeros(10_000), effect_params=lambda fit, eff: {"saturation": dict(c_now)})})
 

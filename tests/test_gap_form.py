@@ -730,12 +730,13 @@ def test_an_effect_is_material_by_the_same_share_on_either_nominal(core):
     from types import SimpleNamespace
 
     from fonbw.gap.attribute import Diagnosis
+    from fonbw.gap.edges import StepEdges
 
     d = Diagnosis.__new__(Diagnosis)
     d.sigma2, d.min_gap_closed, d.seed, d.candidates = 0.01, 0.2, 0, []
     d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], identified=lambda th: True, loro_slack=0.0,
                              refuses=lambda params: None, lag=False)]
-    d.edges = None
+    d.edges = StepEdges([], 1e-4, 1.0)  # records without steps
     d.att = {"core": core, "excess": 1.0, "fitter": SimpleNamespace(y=np.zeros(1000), effect_params=lambda fit, eff: {"a": {}})}
     d.current = {"mse": 1.01, "mse_tr": 1e-4}
     fit = {"rms": 0.02, "th": [np.zeros(1)]}
@@ -779,12 +780,13 @@ def test_a_later_effect_is_material_when_it_closes_much_of_what_is_left():
     from types import SimpleNamespace
 
     from fonbw.gap.attribute import Diagnosis
+    from fonbw.gap.edges import StepEdges
 
     d = Diagnosis.__new__(Diagnosis)
     d.sigma2, d.min_gap_closed, d.seed, d.candidates = 1.0, 0.2, 0, []
     d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], identified=lambda th: True, loro_slack=0.0,
                              refuses=lambda params: None, lag=False)]
-    d.edges = None
+    d.edges = StepEdges([], 1e-4, 1.0)  # records without steps
     d.att = {"core": "fonbw", "excess": 100.0, "fitter": SimpleNamespace(y=np.zeros(1000), effect_params=lambda fit, eff: {"a": {}})}
     fit = {"rms": 0.02, "th": [np.zeros(1)]}
 

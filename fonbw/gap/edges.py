@@ -103,29 +103,38 @@ class StepEdges:
     def __len__(self):
         return len(self.edges)
 
-    def passed(self, block, th):
-        """Share of each edge's settled change that `block` at parameters `th`
-        lets through in the edge's own sample, run on the record's command (an
-        input-side block) or as an operator on it (an output operator; both
-        have unit gain at rest)."""
-        out = []
-        by_rec = {}
+    def passed(self, blocks, ths):
+        """Share of each edge's settled change that the lags among `blocks`
+        (parameters `ths`) let through together in the edge's own sample: the
+        input-side ones run on the record's command in turn, then the output
+        operators on what they give (all have unit gain at rest). None when no
+        block is a lag."""
+        lags = [(b, th) for b, th in zip(blocks, ths) if b.lag]
+        if not lags:
+            return None
+        # input side first: that is where the model runs them
+        lags.sort(key=lambda bt: not bt[0].input_side)
+        out, by_rec = [], {}
         for i, k0 in self.edges:
             if i not in by_rec:
-                u = np.asarray(self.records[i].u, dtype=float)
-                by_rec[i] = (block.transform_input(u, self.dt, th) if block.input_side
-                             else block.output_op(u, self.dt, th))
+                v = np.asarray(self.records[i].u, dtype=float)
+                for b, th in lags:
+                    v = b.transform_input(v, self.dt, th) if b.input_side else b.output_op(v, self.dt, th)
+                by_rec[i] = v
             out.append(_share(by_rec[i], k0, self.settle))
         return np.asarray(out)
 
-    def refuses(self, block, th):
-        """Why lag `block` at `th` contradicts the edges, in words, or None
-        (no edges, or the output moves no faster than the block allows)."""
-        if not len(self):
+    def refuses(self, blocks, ths):
+        """Why the lags among `blocks` at `ths` together contradict the edges,
+        in words, or None (no edges, no lag, or the output moves no faster than
+        the lags allow)."""
+        passed = self.passed(blocks, ths) if len(self) else None
+        if passed is None:
             return None
-        moved, passed = float(np.median(self.moved)), float(np.median(self.passed(block, th)))
+        moved, passed = float(np.median(self.moved)), float(np.median(passed))
         if moved <= RATIO * passed + MARGIN:
             return None
+        names = " and ".join(b.name for b in blocks if b.lag)
         return (f"at the {len(self)} step edges of the training records the output moves {moved:.0%} "
-                f"of its step within the step's sample, where this {block.name} lets {passed:.0%} through: "
+                f"of its step within the step's sample, where the {names} let {passed:.0%} through: "
                 f"the lag is the hysteresis's own rate dependence")

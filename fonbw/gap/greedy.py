@@ -110,9 +110,8 @@ class GreedySteps:
         drop = cur["mse"] - mse
         out = {"gap_closed_step": gc if math.isfinite(gc) else None, "delta_bic": dbic,
                "material": checks.material(step, gc, drop, cur["mse"] - sigma2, sigma2, self.min_gap_closed),
-               "refused": _refused(lib[i], step, fit["th"][-1],
-                                   self.att["fitter"].effect_params(fit, eff)[lib[i].name],
-                                   self.candidates, self.edges)}
+               "refused": (_refused(lib[i], step, self.att["fitter"].effect_params(fit, eff)[lib[i].name],
+                                    self.candidates) or self.edges.refuses(eff, fit["th"]))}
         evident = dbic < checks.BIC_EVIDENCE
         if out["material"] and evident and out["refused"] is None:
             out["bootstrap"] = checks.bootstrap(self.val_s, cur["pred"], pv, sigma2, self.seed)
@@ -196,12 +195,10 @@ class GreedySteps:
         self.timing["attribute_s"] = time.perf_counter() - t0
 
 
-def _refused(block, step, th, params, first, edges):
-    """Why `block`, fitted at greedy `step` (search parameters `th`, every
-    parameter by name in `params`), is not its own effect, or None: its own
-    judgement (:meth:`fonbw.gap.effects.Effect.refuses`), then for a lag the
-    records' step edges (:class:`fonbw.gap.edges.StepEdges` `edges`). `first`
-    holds the first step's candidates.
+def _refused(block, step, params, first):
+    """Why `block`, fitted to `params` at greedy `step`, is not its own effect
+    (:meth:`fonbw.gap.effects.Effect.refuses`), or None; `first` holds the
+    first step's candidates.
 
     A block that was its own effect alone on the nominal stays so: beside an
     accepted effect its parameters trade with that effect's (a stroke limit's
@@ -209,8 +206,6 @@ def _refused(block, step, th, params, first, edges):
     the resonance, blind-harness seed 32028).
     """
     reason = block.refuses(params)
-    if reason is None and block.lag:
-        reason = edges.refuses(block, th)
     if reason is not None and step > 0:
         alone = next((c for c in first if c["effect"] == block.name), None)
         if alone is not None and alone["checks"]["refused"] is None:

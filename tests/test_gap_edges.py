@@ -1,0 +1,138 @@
+"""Step edges of the records as evidence against a lag block (fonbw.gap.edges).
+
+References are closed forms: the share of a step a first-order lag (implicit
+step, pole e^(−dt/τ)) makes in the step's own sample and over the settling
+window, and a whole-sample delay's zero.
+"""
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from fonbw import signals
+from fonbw.gap import edges
+from fonbw.gap.edges import StepEdges
+from fonbw.gap.effects import Amplifier, Delay, Dynamics
+
+FS = 5000.0
+DT = 1.0 / FS
+SETTLE = round(edges.SETTLE_S * FS)
+
+
+def _lag(u, tau):
+    """First-order lag, implicit step: x_k = x_{k−1} + (1 − e^(−dt/τ)) (u_k − x_{k−1})."""
+    q = 1.0 - math.exp(-DT / tau)
+    x = np.empty_like(u)
+    v = u[0]
+    for k, uk in enumerate(u):
+        v += q * (uk - v)
+        x[k] = v
+    return x
+
+
+def _lag_share(tau):
+    """Share of a step's settled change (over the settling window) the lag makes in the step's sample."""
+    a = math.exp(-DT / tau)
+    return (1.0 - a) / (1.0 - a ** (SETTLE + 1))
+
+
+def _records(y_of_u):
+    _, u = signals.step_hold_input((40.0, 100.0, 60.0), hold=1.0, fs=FS)
+    return [SimpleNamespace(u=u, y=y_of_u(u))]
+
+
+def _viscous_core(u, share=0.4, tau=0.01):
+    # an elastic part that answers at once and a viscous one that follows
+    # over τ, as the rate-dependent cores of the blind harness do
+    return 0.1 * (share * u + (1.0 - share) * _lag(u, tau))
+
+
+def test_the_edges_of_a_step_record_are_found_where_the_command_jumps():
+    _, u = signals.step_hold_input((40.0, 100.0, 60.0), hold=1.0, fs=FS)
+    assert edges.find(u, DT) == [500, 5500, 10500]
+    # a jump of less than a fifth of the largest command is no edge, nor one
+    # without the hold before or the settling window after it
+    assert edges.find(np.r_[np.zeros(100), np.full(400, 10.0), np.full(400, 100.0)], DT) == [500]
+    assert edges.find(np.r_[np.zeros(20), np.full(400, 100.0)], DT) == []
+    assert edges.find(np.r_[np.zeros(100), np.full(200, 100.0)], DT) == []
+    assert edges.find(np.linspace(0.0, 100.0, 2000), DT) == []
+
+
+def test_the_share_moved_in_the_step_sample_matches_the_closed_form():
+    e = StepEdges(_records(_viscous_core), DT, sigma=0.001)
+    assert len(e) == 3
+    # 0.4 at once and 0.6 through the lag, both over the settling window
+    a = math.exp(-DT / 0.01)
+    want = (0.4 + 0.6 * (1.0 - a)) / (0.4 + 0.6 * (1.0 - a ** (SETTLE + 1)))
+    np.testing.assert_allclose(e.moved, want, rtol=1e-9)
+    amp = Amplifier(DT, 100.0)
+    f_c = 1.0 / (2.0 * math.pi * 0.01)
+    np.testing.assert_allclose(e.passed([amp], [np.array([f_c, 1e9])]), _lag_share(0.01), rtol=1e-9)
+
+
+def test_a_lag_slower_than_the_output_answers_a_step_is_refused():
+    # the core moves 41 % of its step in the step's sample; an amplifier at the
+    # viscous part's corner (16 Hz) lets 2 % through, one at 2 kHz 92 %
+    e = StepEdges(_records(_viscous_core), DT, sigma=0.001)
+    amp = Amplifier(DT, 100.0)
+    reason = e.refuses([amp], [np.array([15.9, 1e9])])
+    assert reason.startswith("at the 3 step edges of the training records the output moves 41% of its step")
+    assert "where the amplifier let 2% through" in reason
+    assert e.refuses([amp], [np.array([2000.0, 1e9])]) is None
+    # a whole-sample delay passes nothing within the step's sample; a resonance
+    # at 30 Hz almost nothing
+    assert e.refuses([Delay(DT)], [np.array([2.0 * DT])]) is not None
+    assert e.refuses([Dynamics(DT)], [np.array([30.0, 0.3])]) is not None
+
+
+def test_a_real_lag_in_the_drive_is_not_refused():
+    # the output follows the amplifier's own lag (100 Hz), the delay's or the
+    # resonance's: each block at its own parameters passes what the output moves
+    amp, delay, dyn = Amplifier(DT, 100.0), Delay(DT), Dynamics(DT)
+    for block, th in ((amp, np.array([100.0, 1e9])), (delay, np.array([2.0 * DT])), (dyn, np.array([30.0, 0.3]))):
+        op = (lambda u, b=block, t=th: 0.1 * b.transform_input(u, DT, t)) if block.input_side else \
+             (lambda u, b=block, t=th: 0.1 * b.output_op(u, DT, t))
+        e = StepEdges(_records(op), DT, sigma=0.001)
+        assert len(e) == 3 and e.refuses([block], [th]) is None
+        np.testing.assert_allclose(e.moved, e.passed([block], [th]), atol=1e-12)
+    # a faster output than the lag by the ratio and margin exactly is still kept
+    th = np.array([1.0 / (2.0 * math.pi * 0.01), 1e9])
+    e = StepEdges(_records(_viscous_core), DT, sigma=0.001)
+    moved = edges.RATIO * _lag_share(0.01) + edges.MARGIN
+    e.moved = np.full(3, moved - 1e-9)
+    assert e.refuses([amp], [th]) is None
+    e.moved = np.full(3, moved + 1e-9)
+    assert e.refuses([amp], [th]) is not None
+
+
+def test_records_without_clear_steps_give_no_evidence():
+    # steps within 50 noise σ of nothing, or no steps at all (sines)
+    # the 40-V steps move the output 4.0 µm, the 60-V one 6.0 µm: at σ = 0.1 µm only that is 50 σ
+    e = StepEdges(_records(_viscous_core), DT, sigma=0.1)
+    assert e.edges == [(0, 5500)]
+    e = StepEdges(_records(_viscous_core), DT, sigma=1.0)
+    assert len(e) == 0 and e.refuses([Amplifier(DT, 100.0)], [np.array([15.9, 1e9])]) is None
+    t = np.arange(int(2 * FS)) * DT
+    u = 60.0 - 60.0 * np.cos(2 * np.pi * t)
+    e = StepEdges([SimpleNamespace(u=u, y=_viscous_core(u))], DT, sigma=0.001)
+    assert len(e) == 0
+
+
+def test_the_lags_of_a_configuration_are_judged_together():
+    # a half-sample delay lets half of a step through in its sample and an
+    # amplifier at 130 Hz 15 %: each alone agrees with an output that moves
+    # 25 % there, both in a row (7.6 %) do not. Blocks that are no lag
+    # (creep) do not count, and a configuration without a lag is not judged.
+    e = StepEdges(_records(lambda u: 0.1 * (0.1 * u + 0.9 * _lag(u, 0.02))), DT, sigma=0.001)
+    e.moved = np.full(3, 0.25)
+    amp, delay, creep = Amplifier(DT, 100.0), Delay(DT), SimpleNamespace(name="creep", lag=False)
+    th_a, th_d = np.array([130.0, 1e9]), np.array([0.5 * DT])
+    q = 1.0 - math.exp(-2.0 * math.pi * 130.0 * DT)
+    np.testing.assert_allclose(e.passed([delay], [th_d]), 0.5, rtol=1e-9)
+    np.testing.assert_allclose(e.passed([creep, amp], [None, th_a]), q, rtol=1e-6)
+    np.testing.assert_allclose(e.passed([amp, delay], [th_a, th_d]), 0.5 * q, rtol=1e-6)
+    assert e.refuses([delay], [th_d]) is None and e.refuses([creep, amp], [None, th_a]) is None
+    reason = e.refuses([amp, creep, delay], [th_a, None, th_d])
+    assert "where the amplifier and delay let 8% through" in reason
+    assert e.passed([creep], [None]) is None and e.refuses([creep], [None]) is None
