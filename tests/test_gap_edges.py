@@ -136,3 +136,31 @@ def test_the_lags_of_a_configuration_are_judged_together():
     reason = e.refuses([amp, creep, delay], [th_a, None, th_d])
     assert "where the amplifier and delay let 8% through" in reason
     assert e.passed([creep], [None]) is None and e.refuses([creep], [None]) is None
+
+
+def test_a_candidate_is_refused_for_its_own_lag_not_for_an_accepted_one(monkeypatch):
+    # at a later step the joint refit may slow an accepted amplifier past what
+    # the edges allow: a new lag is judged with it, a new creep is not blamed
+    from fonbw.gap import checks
+    from fonbw.gap.attribute import Diagnosis
+
+    monkeypatch.setattr(checks, "bootstrap", lambda *a: {"p05": 0.2, "p10": 0.3, "p50": 0.4})
+    monkeypatch.setattr(checks, "loro", lambda *a: {"ratios": [0.5], "pooled_ratio": 0.5})
+    amp, delay = Amplifier(DT, 100.0), Delay(DT)
+    creep = SimpleNamespace(name="creep", names=(), lin_names=("g",), lag=False, loro_slack=0.0,
+                            identified=lambda th: True, refuses=lambda params: None)
+    me = SimpleNamespace(current={"mse": 0.02, "mse_tr": 0.01, "pred": None, "fit": None, "eff": [amp]},
+                         lib=[amp, creep, delay], sigma2=0.001, min_gap_closed=0.2, val_s=None, seed=0,
+                         candidates=[{"effect": "amplifier", "checks": {"refused": None}}],
+                         edges=StepEdges(_records(_viscous_core), DT, sigma=0.001),
+                         att={"excess": 0.019, "yref_tr": None, "fitter": SimpleNamespace(
+                             y=np.zeros(10_000), effect_params=lambda fit, eff: {"creep": {}, "delay": {}})})
+    slow = np.array([15.9, 1e9])
+
+    def checked(i, th_new):
+        fit = {"rms": 0.05, "th": [slow, th_new]}
+        return Diagnosis.check_candidate(me, i, 1, fit, None, 0.012, [amp, me.lib[i]])
+
+    assert checked(1, np.zeros(0))["passed"]
+    lagged = checked(2, np.array([0.0]))
+    assert not lagged["passed"] and "where the amplifier and delay let 2% through" in lagged["failed"]

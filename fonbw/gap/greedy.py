@@ -93,7 +93,10 @@ class GreedySteps:
         `fit`, `pv`, `mse` are its refit, validation predictions and MSE,
         `eff` the effect list it was fitted with. Returns the ``checks`` dict:
         ``gap_closed_step``, ``delta_bic`` (training records), ``material``,
-        ``bootstrap`` and ``loro`` (only when material with ΔBIC below
+        ``refused`` (why the fitted block is not its own effect, or None: the
+        block's own judgement, and for a lag the training records' step edges,
+        :mod:`fonbw.gap.edges`), ``bootstrap`` and ``loro`` (only when material
+        with ΔBIC below
         :data:`fonbw.gap.checks.BIC_EVIDENCE`),
         ``passed``, ``failed`` (the first check failed, in words; None when
         passed) and ``identified``.
@@ -110,8 +113,12 @@ class GreedySteps:
         drop = cur["mse"] - mse
         out = {"gap_closed_step": gc if math.isfinite(gc) else None, "delta_bic": dbic,
                "material": checks.material(step, gc, drop, cur["mse"] - sigma2, sigma2, self.min_gap_closed),
-               "refused": (_refused(lib[i], step, self.att["fitter"].effect_params(fit, eff)[lib[i].name],
-                                    self.candidates) or self.edges.refuses(eff, fit["th"]))}
+               "refused": _refused(lib[i], step, self.att["fitter"].effect_params(fit, eff)[lib[i].name],
+                                   self.candidates)}
+        if out["refused"] is None and lib[i].lag:
+            # the new lag with those accepted before it; a block that is no lag
+            # is not blamed for where the joint refit moved an accepted one
+            out["refused"] = self.edges.refuses(eff, fit["th"])
         evident = dbic < checks.BIC_EVIDENCE
         if out["material"] and evident and out["refused"] is None:
             out["bootstrap"] = checks.bootstrap(self.val_s, cur["pred"], pv, sigma2, self.seed)
