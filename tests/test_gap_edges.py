@@ -57,6 +57,10 @@ def test_the_edges_of_a_step_record_are_found_where_the_command_jumps():
     assert edges.find(np.r_[np.zeros(20), np.full(400, 100.0)], DT) == []
     assert edges.find(np.r_[np.zeros(100), np.full(200, 100.0)], DT) == []
     assert edges.find(np.linspace(0.0, 100.0, 2000), DT) == []
+    # a logged command carries noise: held to within 2 % of the jump is held
+    noisy = u + np.random.default_rng(1).normal(0.0, 0.1, u.size)
+    assert edges.find(noisy, DT) == [500, 5500, 10500]
+    assert edges.find(u + np.random.default_rng(1).normal(0.0, 1.0, u.size), DT) == []
 
 
 def test_the_share_moved_in_the_step_sample_matches_the_closed_form():
@@ -113,6 +117,9 @@ def test_records_without_clear_steps_give_no_evidence():
     assert e.edges == [(0, 5500)]
     e = StepEdges(_records(_viscous_core), DT, sigma=1.0)
     assert len(e) == 0 and e.refuses([Amplifier(DT, 100.0)], [np.array([15.9, 1e9])]) is None
+    # noise-free records (σ = 0) keep every edge the output moves at, none where it does not
+    assert len(StepEdges(_records(_viscous_core), DT, sigma=0.0)) == 3
+    assert len(StepEdges(_records(lambda u: np.zeros_like(u)), DT, sigma=0.0)) == 0
     t = np.arange(int(2 * FS)) * DT
     u = 60.0 - 60.0 * np.cos(2 * np.pi * t)
     e = StepEdges([SimpleNamespace(u=u, y=_viscous_core(u))], DT, sigma=0.001)

@@ -34,10 +34,12 @@ RATIO = 1.5
 #: Share of the step the output may move beyond RATIO times the block's.
 MARGIN = 0.05
 #: A step edge: the command jumps by at least this share of its largest
-#: magnitude in one sample, held before for HOLD_S and after for SETTLE_S [s].
+#: magnitude in one sample, held before for HOLD_S and after for SETTLE_S [s]
+#: to within HOLD_TOL of the jump (a logged command carries its own noise).
 MIN_JUMP = 0.2
 HOLD_S = 0.01
 SETTLE_S = 0.05
+HOLD_TOL = 0.02
 #: Least settled output change of an edge, in noise standard deviations, so
 #: that the share moved in one sample is known to a few hundredths.
 MIN_SNR = 50.0
@@ -56,7 +58,8 @@ def find(u, dt):
         k0 = int(k) + 1
         if k0 - hold < 0 or k0 + settle >= u.size:
             continue
-        if np.ptp(u[k0 - hold:k0]) == 0.0 and np.ptp(u[k0:k0 + settle + 1]) == 0.0:
+        tol = HOLD_TOL * abs(du[k])
+        if np.ptp(u[k0 - hold:k0]) <= tol and np.ptp(u[k0:k0 + settle + 1]) <= tol:
             out.append(k0)
     return out
 
@@ -95,7 +98,8 @@ class StepEdges:
         for i, r in enumerate(records):
             y = np.asarray(r.y, dtype=float)
             for k0 in find(r.u, dt):
-                if abs(y[k0 + self.settle] - y[k0 - 1]) >= MIN_SNR * sigma:
+                # an output that does not move (noise-free records: σ = 0) tells nothing
+                if abs(y[k0 + self.settle] - y[k0 - 1]) > max(MIN_SNR * sigma, 0.0):
                     self.edges.append((i, k0))
                     moved.append(_share(y, k0, self.settle))
         self.moved = np.asarray(moved)
