@@ -12,11 +12,12 @@ looks like a lag of the drive, and a lag block closes much of the gap. At a
 step edge the two disagree, which is the evidence this module reads.
 
 Measured on the stored first-step candidates of 240 blind-harness scenarios
-(seeds 29000-29039, 30000-31039, 32000-34039), training records only: every
-amplifier, delay and resonance accepted where one was injected (26, 16 and
-22) let through at least 1/1.5 of what the output moved at its edges, less
-a margin of 0.05; 17 of the 44 accepted where none was (16 amplifiers on
-rate-dependent cores) did not.
+(seeds 29000-29039, 30000-31039, 32000-34039, training records only,
+``benchmarks/edge_shares.py``): at the edges of every amplifier, delay and
+resonance accepted where one was injected (26, 16 and 22), the output moved
+no more than 1.5 times the share the block let through plus 0.05 of the
+step; at those of 17 of the 44 accepted where none was (16 amplifiers on
+rate-dependent cores) it moved more.
 """
 from __future__ import annotations
 
