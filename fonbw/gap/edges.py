@@ -46,10 +46,15 @@ HOLD_TOL = 0.02
 MIN_SNR = 50.0
 
 
+def _samples(seconds, dt):
+    """A duration in samples of `dt`, at least one."""
+    return max(1, int(round(seconds / dt)))
+
+
 def find(u, dt):
     """Indices k0 of the step edges of command `u` (u[k0] is the first sample after the jump)."""
     u = np.asarray(u, dtype=float)
-    hold, settle = max(1, int(round(HOLD_S / dt))), max(1, int(round(SETTLE_S / dt)))
+    hold, settle = _samples(HOLD_S, dt), _samples(SETTLE_S, dt)
     U = float(np.max(np.abs(u))) if u.size else 0.0
     if U == 0.0:
         return []
@@ -94,7 +99,7 @@ class StepEdges:
 
     def __init__(self, records, dt, sigma):
         self.records, self.dt = records, float(dt)
-        self.settle = max(1, int(round(SETTLE_S / dt)))
+        self.settle = _samples(SETTLE_S, dt)
         self.edges, moved = [], []
         for i, r in enumerate(records):
             y = np.asarray(r.y, dtype=float)
