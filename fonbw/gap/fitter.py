@@ -291,8 +291,9 @@ class Fitter:
         last column of `A` is f driven by the nominal output) and takes
         Gauss-Newton steps with the Jacobian [(1 + c f'(z)) A[:, :-1], f(z)],
         halving a step that does not lower the residual. A ``compressive``
-        block whose optimum has c > 0 gets c = 0 (its bound) and the plain
-        least squares of the rest. The coefficients indexed by `nonneg`
+        block keeps c ≥ −1 (a step that would go below holds c at −1 and
+        moves the rest alone), and one whose optimum has c > 0 gets c = 0
+        and the plain least squares of the rest. The coefficients indexed by `nonneg`
         (:meth:`nonneg`) are bounded below by 0: while one is negative, the
         most negative (in units of its column's norm) is held at 0 and the
         rest refit, a backward elimination that needs no extra solve when
@@ -326,16 +327,24 @@ class Fitter:
         B = np.asfortranarray(A[:, :-1])
         y = np.ascontiguousarray(y, dtype=float)
         b = b.copy()
+        c_min = -1.0 if e.compressive else -np.inf
+        b[-1] = max(b[-1], c_min)
         r, f, df = np.empty_like(y), np.empty_like(y), np.empty_like(y)
         rn, fn, dfn = np.empty_like(y), np.empty_like(y), np.empty_like(y)
         sse = e.residual(B, b, y, th, r, f, df)
         for _ in range(iters):
-            step = cls._gn_step(*knee.normal_equations(B, b[-1], df, f, r))
+            G, g = knee.normal_equations(B, b[-1], df, f, r)
+            step = cls._gn_step(G, g)
+            if step is not None and b[-1] == c_min and step[-1] < 0.0:
+                # the bound is active: c stays, the rest takes the step
+                sub = cls._gn_step(G[:-1, :-1], g[:-1])
+                step = None if sub is None else np.r_[sub, 0.0]
             if step is None:
                 break
             lam, better = 1.0, False
             for _ in range(6):
                 bn = b + lam * step
+                bn[-1] = max(bn[-1], c_min)
                 sn = e.residual(B, bn, y, th, rn, fn, dfn)
                 if sn < sse:
                     better = True
