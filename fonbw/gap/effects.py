@@ -397,8 +397,8 @@ class Saturation(Effect):
     #: blind-harness scenarios (seeds 32000-35039) reached c = −4.1 with
     #: corners 0.01-0.08 µm wide, a hook at the top of the training loops
     #: (gap closed down to −10 on validation). Bounded, a rate-dependent
-    #: core's stroke limit (seed 35000) was named, no longer a rail; 21
-    #: other scenarios with such fits kept their verdicts.
+    #: core's stroke limit (seed 35000) was named, no longer a rail; the
+    #: other 21 scenarios rerun kept their verdicts (BENCHMARKS.md).
     compressive = True
     #: Least drop of the slope above the knee (−c) for a stroke limit. A stop
     #: (a mechanical end, a flexure run out of travel) flattens the
