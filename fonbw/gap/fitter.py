@@ -290,10 +290,11 @@ class Fitter:
         The nonlinear form starts from the plain least-squares solution (the
         last column of `A` is f driven by the nominal output) and takes
         Gauss-Newton steps with the Jacobian [(1 + c f'(z)) A[:, :-1], f(z)],
-        halving a step that does not lower the residual. A ``compressive``
-        block keeps c ≥ −1 (a step that would go below holds c at −1 and
-        moves the rest alone), and one whose optimum has c > 0 gets c = 0
-        and the plain least squares of the rest. The coefficients indexed by `nonneg`
+        halving a step that does not lower the residual. c stays at or above
+        the block's ``c_min``: a step that would cross it is cut short where c
+        reaches it, and at the bound a step that would lower c moves the rest
+        alone. A ``compressive`` block whose optimum has c > 0 gets c = 0 and
+        the plain least squares of the rest. The coefficients indexed by `nonneg`
         (:meth:`nonneg`) are bounded below by 0: while one is negative, the
         most negative (in units of its column's norm) is held at 0 and the
         rest refit, a backward elimination that needs no extra solve when
@@ -327,7 +328,7 @@ class Fitter:
         B = np.asfortranarray(A[:, :-1])
         y = np.ascontiguousarray(y, dtype=float)
         b = b.copy()
-        c_min = -1.0 if e.compressive else -np.inf
+        c_min = e.c_min
         b[-1] = max(b[-1], c_min)
         r, f, df = np.empty_like(y), np.empty_like(y), np.empty_like(y)
         rn, fn, dfn = np.empty_like(y), np.empty_like(y), np.empty_like(y)
@@ -335,13 +336,18 @@ class Fitter:
         for _ in range(iters):
             G, g = knee.normal_equations(B, b[-1], df, f, r)
             step = cls._gn_step(G, g)
-            if step is not None and b[-1] == c_min and step[-1] < 0.0:
+            if step is not None and b[-1] <= c_min + 1e-12 and step[-1] < 0.0:
                 # the bound is active: c stays, the rest takes the step
                 sub = cls._gn_step(G[:-1, :-1], g[:-1])
                 step = None if sub is None else np.r_[sub, 0.0]
             if step is None:
                 break
+            # a step that crosses the bound stops where c reaches it: clipped
+            # instead, the rest would move as if c went on, and no halving
+            # of that lowers the residual
             lam, better = 1.0, False
+            if b[-1] + step[-1] < c_min:
+                lam = (c_min - b[-1]) / step[-1]
             for _ in range(6):
                 bn = b + lam * step
                 bn[-1] = max(bn[-1], c_min)
