@@ -6,7 +6,7 @@ that changes nothing: for every lag candidate (amplifier, delay, resonance) at
 every greedy step it records
 
 * the *dead time* of each training step edge (:class:`fonbw.gap.edges.StepEdges`):
-  the samples from the edge's own on during which the measured output stays
+  the samples from the edge's own sample on during which the measured output stays
   within :data:`DEAD_SHARE` of its settled change, and
 * the share of its own settled change the candidate's model (nominal, the
   accepted effects and the candidate, as fitted) has made by the edge's last
