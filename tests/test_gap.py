@@ -212,8 +212,9 @@ def test_a_stroke_limit_only_lowers_the_slope_at_most_to_flat():
             # given 30 steps (8 in the diagnosis: 1.1e-4 above the optimum's
             # sum of squares). Started from the plain least squares and from
             # just inside the bound (the last column scaled so that its
-            # coefficient is c = −1 + 1e-9): a step that crossed the bound
-            # used to be clipped there, and that start stalled 14 % above
+            # coefficient is c = −1 + 1e-9): a step that crosses the bound
+            # must stop there; clipped at it instead, the fit from that start
+            # stalls 14 % above the optimum
             assert ref.x[-1] == pytest.approx(-1.0, abs=1e-12)
             c_ls = Fitter.solve(A, y)[0][-1]
             for scale in (1.0, c_ls / (-1.0 + 1e-9)):

@@ -411,9 +411,10 @@ class Saturation(Effect):
     #: form's, which the reference nominal's envelope follows only in part.
     #: Measured on the accepted saturations of 160 blind-harness scenarios
     #: (seeds 29000-29039, 30000-31039, 32000-32039), alone on the nominal,
-    #: before c ≥ −1: the nine injected ones dropped the slope by 0.78-1.42
-    #: (by 1 at most since), the ten where none was material (the Preisach
-    #: and Prandtl-Ishlinskii cores' envelopes) by 0.04-0.57.
+    #: with c unbounded below: the nine injected ones dropped the slope by
+    #: 0.78-1.42 (c ≥ −1 caps the drop at 1), the ten where none was
+    #: material (the Preisach and Prandtl-Ishlinskii cores' envelopes) by
+    #: 0.04-0.57.
     min_drop = 2.0 / 3.0
 
     def __init__(self, y_lo, y_hi):

@@ -291,11 +291,11 @@ class Fitter:
         last column of `A` is f driven by the nominal output) and takes
         Gauss-Newton steps with the Jacobian [(1 + c f'(z)) A[:, :-1], f(z)],
         halving a step that does not lower the residual. c stays at or above
-        the block's ``c_min``: a step that would cross it is cut short where c
-        reaches it, and at the bound a step that would lower c moves the rest
-        alone. A ``compressive`` block whose optimum has c > 0 gets c = 0 and
-        the plain least squares of the rest. The coefficients indexed by `nonneg`
-        (:meth:`nonneg`) are bounded below by 0: while one is negative, the
+        the block's ``c_min``: a step that would cross it is cut short where
+        c reaches it, and at the bound a step that would lower c moves the
+        rest alone. A ``compressive`` block whose optimum has c > 0 gets
+        c = 0 and the plain least squares of the rest. The coefficients
+        indexed by `nonneg` (:meth:`nonneg`) are bounded below by 0: while one is negative, the
         most negative (in units of its column's norm) is held at 0 and the
         rest refit, a backward elimination that needs no extra solve when
         the bounds are inactive. Returns (None, None) for non-finite columns.
