@@ -295,10 +295,10 @@ class Fitter:
         c reaches it, and at the bound a step that would lower c moves the
         rest alone. A ``compressive`` block whose optimum has c > 0 gets
         c = 0 and the plain least squares of the rest. The coefficients
-        indexed by `nonneg` (:meth:`nonneg`) are bounded below by 0: while one is negative, the
-        most negative (in units of its column's norm) is held at 0 and the
-        rest refit, a backward elimination that needs no extra solve when
-        the bounds are inactive. Returns (None, None) for non-finite columns.
+        indexed by `nonneg` (:meth:`nonneg`) are bounded below by 0: while
+        one is negative, the most negative (in units of its column's norm) is
+        held at 0 and the rest refit, a backward elimination that needs no
+        extra solve when the bounds are inactive. Returns (None, None) for non-finite columns.
         """
         b, r = cls._fit_free(A, y, outer, iters)
         if nonneg is None or b is None:

@@ -95,9 +95,8 @@ class GreedySteps:
         ``gap_closed_step``, ``delta_bic`` (training records), ``material``,
         ``refused`` (why the fitted block is not its own effect, or None: the
         block's own judgement, and for a lag the training records' step edges,
-        :mod:`fonbw.gap.edges`), ``bootstrap`` and ``loro`` (only when material
-        with ΔBIC below
-        :data:`fonbw.gap.checks.BIC_EVIDENCE`),
+        :mod:`fonbw.gap.edges`), ``bootstrap`` and ``loro`` (only when
+        material with ΔBIC below :data:`fonbw.gap.checks.BIC_EVIDENCE`),
         ``passed``, ``failed`` (the first check failed, in words; None when
         passed) and ``identified``.
         """
