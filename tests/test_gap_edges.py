@@ -160,6 +160,7 @@ def test_a_candidate_is_refused_for_its_own_lag_not_for_an_accepted_one(monkeypa
                          lib=[amp, creep, delay], sigma2=0.001, min_gap_closed=0.2, val_s=None, seed=0,
                          candidates=[{"effect": "amplifier", "checks": {"refused": None}}],
                          edges=StepEdges(_records(_viscous_core), DT, sigma=0.001),
+                         _own_bic=lambda *a: -math.inf,  # the block is all of its refit's gain
                          att={"excess": 0.019, "yref_tr": None, "fitter": SimpleNamespace(
                              y=np.zeros(10_000), effect_params=lambda fit, eff: {"creep": {}, "delay": {}})})
     slow = np.array([15.9, 1e9])

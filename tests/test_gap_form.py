@@ -1,4 +1,6 @@
 """Hysteresis form in the gap diagnosis, the reference core, and record starts."""
+import math
+
 import numpy as np
 import pytest
 
@@ -737,6 +739,7 @@ def test_an_effect_is_material_by_the_same_share_on_either_nominal(core):
     d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], identified=lambda th: True, loro_slack=0.0,
                              refuses=lambda params: None, lag=False)]
     d.edges = StepEdges([], 1e-4, 1.0)  # records without steps
+    d._own_bic = lambda *a: -math.inf  # the block is all of its refit's gain
     d.att = {"core": core, "excess": 1.0, "fitter": SimpleNamespace(y=np.zeros(1000), effect_params=lambda fit, eff: {"a": {}})}
     d.current = {"mse": 1.01, "mse_tr": 1e-4}
     fit = {"rms": 0.02, "th": [np.zeros(1)]}
@@ -787,6 +790,7 @@ def test_a_later_effect_is_material_when_it_closes_much_of_what_is_left():
     d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], identified=lambda th: True, loro_slack=0.0,
                              refuses=lambda params: None, lag=False)]
     d.edges = StepEdges([], 1e-4, 1.0)  # records without steps
+    d._own_bic = lambda *a: -math.inf  # the block is all of its refit's gain
     d.att = {"core": "fonbw", "excess": 100.0, "fitter": SimpleNamespace(y=np.zeros(1000), effect_params=lambda fit, eff: {"a": {}})}
     fit = {"rms": 0.02, "th": [np.zeros(1)]}
 

@@ -92,13 +92,14 @@ class GreedySteps:
 
         `fit`, `pv`, `mse` are its refit, validation predictions and MSE,
         `eff` the effect list it was fitted with. Returns the ``checks`` dict:
-        ``gap_closed_step``, ``delta_bic`` (training records), ``material``,
-        ``refused`` (why the fitted block is not its own effect, or None: the
-        block's own judgement, and for a lag the training records' step edges,
+        ``gap_closed_step``, ``delta_bic`` and ``own_bic`` (training records;
+        :func:`fonbw.gap.checks.lacks_evidence`), ``material``, ``refused``
+        (why the fitted block is not its own effect, or None: the block's own
+        judgement, and for a lag the training records' step edges,
         :mod:`fonbw.gap.edges`), ``bootstrap`` and ``loro`` (only when
-        material with ΔBIC below :data:`fonbw.gap.checks.BIC_EVIDENCE`),
-        ``passed``, ``failed`` (the first check failed, in words; None when
-        passed) and ``identified``.
+        material with the training records' evidence), ``passed``,
+        ``failed`` (the first check failed, in words; None when passed) and
+        ``identified``.
         """
         cur, lib, sigma2 = self.current, self.lib, self.sigma2
         # shares of the gap left by the nominal the effects are attributed on
@@ -111,6 +112,7 @@ class GreedySteps:
         dbic = ntr * math.log(max(fit["rms"] ** 2, 1e-300) / cur["mse_tr"]) + k * math.log(ntr)
         drop = cur["mse"] - mse
         out = {"gap_closed_step": gc if math.isfinite(gc) else None, "delta_bic": dbic,
+               "own_bic": self._own_bic(fit, eff, k, ntr),
                "material": checks.material(step, gc, drop, cur["mse"] - sigma2, sigma2, self.min_gap_closed),
                "refused": _refused(lib[i], step, self.att["fitter"].effect_params(fit, eff)[lib[i].name],
                                    self.candidates)}
@@ -118,14 +120,26 @@ class GreedySteps:
             # the new lag with those accepted before it; a block that is no lag
             # is not blamed for where the joint refit moved an accepted one
             out["refused"] = self.edges.refuses(eff, fit["th"])
-        evident = dbic < checks.BIC_EVIDENCE
-        if out["material"] and evident and out["refused"] is None:
+        if out["material"] and checks.lacks_evidence(dbic, out["own_bic"]) is None and out["refused"] is None:
             out["bootstrap"] = checks.bootstrap(self.val_s, cur["pred"], pv, sigma2, self.seed)
             out["loro"] = checks.loro(self.att["fitter"], cur["fit"], fit, cur["eff"], eff, self.att["yref_tr"])
         failed = _failed_check(out, lib[i].loro_slack)
         out["passed"], out["failed"] = failed is None, failed
         out["identified"] = bool(lib[i].identified(fit["th"][-1]))
         return out
+
+    def _own_bic(self, fit, eff, k, ntr):
+        """Training BIC change the new block (last of `eff`, `k` parameters)
+        earns itself: the refit `fit` against the same parameters with the
+        block taken out and the linear weights solved again. ΔBIC compares
+        with the configuration before, so it also credits the nominal's and
+        the accepted blocks' parameters for moving in the refit."""
+        X = np.asarray(fit["x"], dtype=float)[None, :]
+        TH = [np.asarray(t, dtype=float)[None, :] for t in fit["th"][:-1]]
+        rms = float(self.att["fitter"].cost(X, eff[:-1], TH, self.att["yref_tr"])[0])
+        if not (math.isfinite(rms) and math.isfinite(fit["rms"])):
+            return -math.inf if math.isfinite(fit["rms"]) else math.inf
+        return ntr * math.log(max(fit["rms"] ** 2, 1e-300) / max(rms ** 2, 1e-300)) + k * math.log(ntr)
 
     def try_candidates(self, step, pool, t0):
         """Refit and check each library effect of `pool` on top of the current
@@ -227,8 +241,9 @@ def _failed_check(out, slack=0.0):
         return "closes too little"
     if out["refused"] is not None:
         return out["refused"]
-    if not out["delta_bic"] < checks.BIC_EVIDENCE:
-        return f"ΔBIC {out['delta_bic']:.3g} on the training records, not below {checks.BIC_EVIDENCE:g}"
+    lacking = checks.lacks_evidence(out["delta_bic"], out["own_bic"])
+    if lacking is not None:
+        return lacking
     if not out["bootstrap"]["p10"] > 0:
         return f"bootstrap 10th percentile {out['bootstrap']['p10']:.3g}"
     if not checks.loro_passes(out["loro"], slack):
