@@ -28,7 +28,10 @@ split into training and validation sets:
 4. **Check** — an effect is accepted only if it closes a material part of
    the excess gap (``min_gap_closed``; at a later step, or most of what the
    effects accepted before it leave), lowers the Bayesian information
-   criterion on the training records by more than 10, survives a Bayesian block bootstrap over
+   criterion on the training records by more than 10 and accounts for more
+   than half of that itself (taken out of its joint refit, the fit must
+   lose it: the refit also polishes the nominal and the accepted blocks,
+   see :data:`fonbw.gap.checks.OWN_SHARE`), survives a Bayesian block bootstrap over
    segments of the validation records (10th percentile of gap_closed > 0;
    Dirichlet weights, because the evidence of a lag sits in the two or three
    segments with step edges, see :func:`fonbw.gap.checks.bootstrap`), and its parameters

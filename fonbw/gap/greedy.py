@@ -133,7 +133,9 @@ class GreedySteps:
         earns itself: the refit `fit` against the same parameters with the
         block taken out and the linear weights solved again. ΔBIC compares
         with the configuration before, so it also credits the nominal's and
-        the accepted blocks' parameters for moving in the refit."""
+        the accepted blocks' parameters for moving in the refit. −inf when
+        the refit diverges without the block (it is what keeps the model
+        bounded), +inf when the refit itself does not fit."""
         X = np.asarray(fit["x"], dtype=float)[None, :]
         TH = [np.asarray(t, dtype=float)[None, :] for t in fit["th"][:-1]]
         rms = float(self.att["fitter"].cost(X, eff[:-1], TH, self.att["yref_tr"])[0])
