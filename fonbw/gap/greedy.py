@@ -130,8 +130,8 @@ class GreedySteps:
 
     def _own_bic(self, fit, eff, k, ntr):
         """Training BIC change the new block (last of `eff`, `k` parameters)
-        earns itself: the refit `fit` against the same parameters with the
-        block taken out and the linear weights solved again. ΔBIC compares
+        accounts for itself: the refit `fit` against the same parameters with
+        the block taken out and the linear weights solved again. ΔBIC compares
         with the configuration before, so it also credits the nominal's and
         the accepted blocks' parameters for moving in the refit. −inf when
         the refit diverges without the block (it is what keeps the model
