@@ -11,10 +11,12 @@ records the gap left after the diagnosis lies (and whether they are covered);
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = ["CONDITIONS", "AMPLITUDE_TOL", "MIN_DROP", "LATE_SHARE", "LATE_DROP", "BIC_EVIDENCE",
-           "OWN_SHARE", "material", "lacks_evidence", "coverage", "flag_text", "loro_passes", "remaining",
+           "OWN_SHARE", "material", "bic_change", "lacks_evidence", "coverage", "flag_text", "loro_passes", "remaining",
            "mse", "bootstrap", "loro"]
 
 
@@ -76,6 +78,13 @@ BIC_EVIDENCE = -10.0
 #: injected accounted for 0.51. On a reference core the nominal has nothing
 #: to move, so at the first step the share is 1.
 OWN_SHARE = 0.5
+
+
+def bic_change(n, mse, mse_before, k):
+    """Change of the Bayesian information criterion of `n` Gaussian
+    residuals from mean square `mse_before` to `mse` [µm²] with `k` more
+    parameters; both mean squares floored at 1e-300 µm² (an exact fit)."""
+    return n * math.log(max(mse, 1e-300) / max(mse_before, 1e-300)) + k * math.log(n)
 
 
 def lacks_evidence(delta_bic, own_bic):

@@ -271,8 +271,7 @@ def check_form(d):
     gc = (d.mse0 - d.mse_ref) / ex if ex > 0 else 0.0
     ntr = len(d.fitter.y)
     k_fonbw = d.fitter.nx + d.N + 1
-    dbic = (ntr * math.log(max(d.base_ref["rms"] ** 2, 1e-300) / max(d.base["rms"] ** 2, 1e-300))
-            + (d.ref_core.n_params - k_fonbw) * math.log(ntr))
+    dbic = checks.bic_change(ntr, d.base_ref["rms"] ** 2, d.base["rms"] ** 2, d.ref_core.n_params - k_fonbw)
     material = bool(not d.at_floor and gc >= d.min_gap_closed and d.mse0 - d.mse_ref > checks.MIN_DROP * d.sigma2)
     boot = checks.bootstrap(d.val_s, d.p0_va, d.pref_va, d.sigma2, d.seed) if material and dbic < 0 else None
     passed = bool(material and dbic < 0 and boot["p10"] > 0)
@@ -305,8 +304,8 @@ def form_on_effects(d, fonbw_s, ref_s):
     gap = fonbw_s["mse"] - ref_s["mse"]
     left = fonbw_s["mse"] - s2
     ntr = len(d.fitter.y)
-    dbic = (ntr * math.log(max(ref_s["fit"]["rms"] ** 2, 1e-300) / max(fonbw_s["fit"]["rms"] ** 2, 1e-300))
-            + (d.ref_core.n_params - (d.fitter.nx + d.N + 1)) * math.log(ntr))
+    dbic = checks.bic_change(ntr, ref_s["fit"]["rms"] ** 2, fonbw_s["fit"]["rms"] ** 2,
+                             d.ref_core.n_params - (d.fitter.nx + d.N + 1))
     material = bool(fonbw_s["mse"] > (1.0 + d.floor_tol) * s2 and math.isfinite(gap)
                     and gap >= d.min_gap_closed * left and gap >= checks.LATE_DROP * s2)
     boot = checks.bootstrap(d.val_s, fonbw_s["pred"], ref_s["pred"], s2, d.seed) if material and dbic < 0 else None

@@ -109,7 +109,7 @@ class GreedySteps:
             gc = -math.inf  # diverged on the validation inputs
         k = len(lib[i].names) + len(lib[i].lin_names)
         ntr = len(self.att["fitter"].y)
-        dbic = ntr * math.log(max(fit["rms"] ** 2, 1e-300) / cur["mse_tr"]) + k * math.log(ntr)
+        dbic = checks.bic_change(ntr, fit["rms"] ** 2, cur["mse_tr"], k)
         drop = cur["mse"] - mse
         out = {"gap_closed_step": gc if math.isfinite(gc) else None, "delta_bic": dbic,
                "own_bic": self._own_bic(fit, eff, k, ntr),
@@ -141,7 +141,7 @@ class GreedySteps:
         rms = float(self.att["fitter"].cost(X, eff[:-1], TH, self.att["yref_tr"])[0])
         if not (math.isfinite(rms) and math.isfinite(fit["rms"])):
             return -math.inf if math.isfinite(fit["rms"]) else math.inf
-        return ntr * math.log(max(fit["rms"] ** 2, 1e-300) / max(rms ** 2, 1e-300)) + k * math.log(ntr)
+        return checks.bic_change(ntr, fit["rms"] ** 2, rms ** 2, k)
 
     def try_candidates(self, step, pool, t0):
         """Refit and check each library effect of `pool` on top of the current
