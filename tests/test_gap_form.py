@@ -498,6 +498,78 @@ def test_form_not_asked_after_the_effects_when_the_reference_alone_loses():
     assert [s["label"] for s in d.steps] == ["nominal", "+clip"] and d.att == {"core": "fonbw"}
 
 
+def _alone_case(drop_s2, delta_bic=-500.0, hum_s2=60.0):
+    """No effect accepted; σ = 0.01 µm. FONBW leaves a 50-Hz hum of `hum_s2`
+    σ² and a loop-shape error of `drop_s2` σ² (orthogonal to it), the
+    reference the hum alone: its share of the excess stays below 0.2."""
+    from types import SimpleNamespace
+
+    n, s2 = 20000, 1e-4
+    dt = 2e-4
+    t = np.arange(n) * dt
+    u = 60 - 60 * np.cos(2 * np.pi * t)
+    y = 0.1 * u
+    hum = np.sqrt(2 * hum_s2 * s2) * np.sin(2 * np.pi * 50 * t)
+    shape = np.sqrt(2 * drop_s2 * s2) * np.sin(2 * np.pi * 3 * t)
+    rec = _rec(u, y, dt)
+    p0, pref = y - hum - shape, y - hum
+    mse0, mse_ref = float(np.mean((hum + shape) ** 2)), float(np.mean(hum ** 2))
+    ref_fitter = SimpleNamespace(predict=lambda *a: [pref])
+    return SimpleNamespace(
+        sigma2=s2, seed=0, dt=dt, val_s=[rec], p0_va=[p0], pref_va=[pref], accepted=[], at_floor=False,
+        mse0=mse0, mse_ref=mse_ref, excess0=mse0 - s2,
+        form={"material": False, "gap_closed": (mse0 - mse_ref) / (mse0 - s2), "delta_bic": delta_bic,
+              "bootstrap": None, "where": None},
+        steps=[{"label": "nominal", "rms_validate": np.sqrt(mse0)}],
+        current={"fit": {"rms": 0.05, "th": []}, "eff": [], "idx": [], "pred": [p0], "mse": mse0, "mse_tr": 25e-4},
+        base_ref={"rms": 0.03, "th": []}, att={"core": "fonbw"}, say=lambda *a: None,
+        reference_att=lambda: {"core": "reference", "fitter": ref_fitter})
+
+
+def test_form_with_no_effect_named_is_judged_by_the_mse_it_removes():
+    from fonbw.gap import form as fm
+    from fonbw.gap import selection
+
+    d = _alone_case(8.0)
+    assert d.form["gap_closed"] == pytest.approx(8 / 67, rel=1e-3)   # below the 0.2 share
+    fm.judge_on_effects(d)
+    f = d.form
+    assert f["material"] and f["found_alone"] and f["drop_sigma2"] == pytest.approx(8.0, rel=1e-3)
+    assert f["bootstrap"]["p10"] > 0 and f["where"] is not None
+    assert [s["label"] for s in d.steps] == ["nominal", "form"]
+    assert d.steps[-1]["rms_validate"] == pytest.approx(np.sqrt(d.mse_ref), rel=1e-12)
+    assert d.current["mse"] == d.mse_ref and d.current["pred"] == d.pref_va and d.current["eff"] == []
+    assert d.att["core"] == "reference" and d.att["attributed_on"] == "fonbw"
+    v = selection.verdict([], mse0=d.mse0, mse=d.current["mse"], excess0=d.excess0, at_floor=False,
+                          steps=d.steps + [{"label": "noise floor", "rms_validate": 0.01}], coverage={},
+                          params={}, form=f)
+    assert v["effects"] == [] and v["form"]["material"]
+    assert v["gap_closed"] == pytest.approx(8 / 67, rel=1e-3)
+    assert v["message"].startswith("partly explained by the hysteresis form; most of the gap is unexplained")
+    assert "lowers the validation MSE by 8 noise variances" in selection.form_text(v["form"])
+
+
+@pytest.mark.parametrize("drop_s2, delta_bic", [(0.9, -500.0), (8.0, 5.0)])
+def test_form_with_no_effect_named_needs_a_noise_variance_and_a_lower_bic(drop_s2, delta_bic):
+    from fonbw.gap import form as fm
+
+    d = _alone_case(drop_s2, delta_bic)
+    before = dict(d.form)
+    fm.judge_on_effects(d)
+    assert d.form == before and [s["label"] for s in d.steps] == ["nominal"] and d.att == {"core": "fonbw"}
+    out = fm.form_alone(_alone_case(drop_s2, delta_bic))
+    assert not out["passed"] and out["drop_sigma2"] == pytest.approx(drop_s2, rel=1e-3)
+
+
+def test_form_with_no_effect_named_not_asked_when_the_reference_loses():
+    from fonbw.gap import form as fm
+
+    d = _alone_case(8.0)
+    d.mse_ref = d.mse0 + 1e-6
+    fm.judge_on_effects(d)
+    assert not d.form["material"] and "found_alone" not in d.form and len(d.steps) == 1
+
+
 def test_form_stands_when_fonbw_with_the_effects_diverges():
     from types import SimpleNamespace
 

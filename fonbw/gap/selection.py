@@ -107,7 +107,9 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         share is ``gap_closed_nominals``), ``where``, ``delta_bic`` and
         ``bootstrap`` (the nominals alone) and, once effects are accepted,
         ``gap_closed_after_effects`` (share of what FONBW + the effects
-        leaves), ``delta_bic_after_effects``, ``bootstrap_after_effects``.
+        leaves), ``delta_bic_after_effects``, ``bootstrap_after_effects``;
+        ``found_alone`` and ``drop_sigma2`` (the validation MSE it removes,
+        in noise variances) when it was named with no effect beside it.
     start : dict, optional
         How the records start (burn-ins).
     remaining : list of dict, optional
@@ -175,6 +177,9 @@ def form_text(form):
     material = bool(form.get("material"))
     text = (f"{'material' if material else 'not material'}: the reference hysteresis closes "
             f"{form['gap_closed']:.3g} of the gap")
+    if material and form.get("found_alone"):
+        text += (f", with no effect named: it lowers the validation MSE by {form['drop_sigma2']:.3g} noise "
+                 "variances, and what is left no candidate explains")
     if material and form.get("found_after_effects"):
         text += (f", found on top of the accepted effects ({form['gap_closed_after_effects']:.3g} of what "
                  "they leave)")
