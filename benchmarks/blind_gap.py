@@ -163,8 +163,8 @@ def _oracles(seed, sc, opt):
 
 def _verdict(res):
     """The fields of the diagnosis' JSON the summary reads (``verdict.form`` may be missing), and
-    the fitted parameters of every first-step candidate and of the named effects, for reading a
-    miss without running it again."""
+    the fitted parameters and checks of every candidate (first and later greedy steps) and of the
+    named effects, for reading a miss without running it again."""
     d = res.to_dict() if hasattr(res, "to_dict") else dict(res)
     v, nom = d["verdict"], d.get("nominal", {})
     return {"named": list(v["effects"]), "gap_closed": v["gap_closed"], "unexplained": v["unexplained"],
@@ -172,6 +172,7 @@ def _verdict(res):
             "noise_floor": nom.get("noise_floor"), "rms0": nom.get("rms_validate"),
             "candidates": [{k: c.get(k) for k in ("effect", "gap_closed", "accepted", "checks", "params")}
                            for c in d.get("candidates", [])],
+            "later_steps": v.get("later_steps", []),
             "effect_params": v.get("params"), "remaining": v.get("remaining"), "at_bounds": nom.get("at_bounds")}
 
 

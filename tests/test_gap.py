@@ -804,6 +804,30 @@ def test_blind_stroke_limit_is_the_only_effect_named(stroke_limit):
     assert stroke_limit[1]["verdict"]["effects"] == ["saturation"]
 
 
+def test_later_steps_say_why_no_second_effect_was_named(stroke_limit, tmp_path):
+    from fonbw.gap.report import write_html
+
+    res = stroke_limit[1]
+    v = res["verdict"]
+    (st,) = v["later_steps"]
+    assert st["on_top_of"] == ["saturation"] and st["accepted"] is None
+    assert st["rms_validate"] == v["waterfall"][1]["rms_validate"]
+    s2, m0 = res["nominal"]["noise_floor"] ** 2, res["nominal"]["rms_validate"] ** 2
+    gcs = [c["gap_closed"] for c in st["candidates"]]
+    assert gcs == sorted(gcs, reverse=True) and "saturation" not in {c["effect"] for c in st["candidates"]}
+    for c in st["candidates"]:
+        # a share of the nominal's excess, what the step's refit removes from the configuration before it
+        assert c["gap_closed"] == pytest.approx((st["rms_validate"] ** 2 - c["rms_validate"] ** 2) / (m0 - s2),
+                                                rel=1e-9)
+        assert not c["accepted"] and c["checks"]["failed"]
+    # each closes about a fifth of the gap, and none accounts for its refit's ΔBIC itself
+    assert min(gcs) > 0.15
+    assert all(c["checks"]["failed"].startswith("the block itself accounts for") for c in st["candidates"])
+    write_html(res, tmp_path / "r.html")
+    page = (tmp_path / "r.html").read_text(encoding="utf-8")
+    assert "On top of saturation" in page and "the block itself accounts for" in page
+
+
 def test_result_object_reads_as_its_json():
     from fonbw.gap import DiagnosisResult
 
@@ -863,23 +887,23 @@ def test_a_nominal_of_its_own_that_diverges_is_refit_bounded():
 
 def test_a_candidate_that_diverges_on_validation_is_listed_without_a_gap():
     # a refit whose validation error is not finite has no gap closed (None in its
-    # checks); the first step still lists it, and the JSON carries null
+    # checks); a step still lists it, last, and the JSON carries null
     from types import SimpleNamespace
 
     from fonbw.gap.attribute import Diagnosis
 
     lib = [SimpleNamespace(name="clip"), SimpleNamespace(name="creep")]
     fitter = SimpleNamespace(effect_params=lambda fit, eff: {e.name: {"level": 1.0} for e in eff})
-    me = SimpleNamespace(lib=lib, candidates=[], att={"fitter": fitter})
+    me = SimpleNamespace(lib=lib, att={"fitter": fitter})
     results = [{"i": 0, "fit": {}, "mse": math.inf, "eff": [lib[0]],
                 "checks": {"gap_closed_step": None, "passed": False}},
                {"i": 1, "fit": {}, "mse": 0.04, "eff": [lib[1]],
                 "checks": {"gap_closed_step": 0.37, "passed": True}}]
-    Diagnosis._first_step_candidates(me, results)
-    clip, creep = me.candidates
+    entries = Diagnosis._entries(me, results)
+    creep, clip = entries
     assert clip["effect"] == "clip" and clip["gap_closed"] is None and clip["rms_validate"] is None
     assert creep["gap_closed"] == 0.37 and creep["rms_validate"] == pytest.approx(0.2)
-    json.dumps(me.candidates, allow_nan=False)
+    json.dumps(entries, allow_nan=False)
 
 
 def test_an_effect_needs_a_bic_drop_of_more_than_ten_on_the_training_records(monkeypatch):

@@ -492,7 +492,6 @@ class Diagnosis(GreedySteps):
         for c in self.candidates:
             c["accepted"] = c["effect"] in self.accepted
         at_bounds = self.nominal_at_bounds()
-        self.candidates.sort(key=lambda c: -(c["gap_closed"] if c["gap_closed"] is not None else -math.inf))
         self.steps.append({"label": "noise floor", "rms_validate": math.sqrt(self.sigma2)})
         verdict = selection.verdict(
             self.accepted, mse0=self.mse0, mse=self.current["mse"], excess0=self.excess0,
@@ -500,7 +499,7 @@ class Diagnosis(GreedySteps):
             params=self.att["fitter"].effect_params(self.current["fit"], self.current["eff"]),
             form=self.form, start=self.rs.report(),
             remaining=checks.remaining(self.val_s, self.current["pred"], self.sigma2, self.coverage),
-            at_bounds=at_bounds)
+            at_bounds=at_bounds, later_steps=self.later_steps)
         self.timing["total_s"] = time.perf_counter() - self.t_start
         given = self.model_given
         nominal = {

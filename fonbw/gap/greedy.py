@@ -169,20 +169,35 @@ class GreedySteps:
         return [{"i": i, "fit": by_i[i][0], "pv": by_i[i][1], "mse": by_i[i][2], "eff": cur["eff"] + [self.lib[i]],
                  "checks": by_i[i][3]} for i in pool]
 
-    def _first_step_candidates(self, results):
-        """The ``candidates`` entries of the first greedy step (every effect alone)."""
+    def _entries(self, results):
+        """One JSON-able entry per candidate of a greedy step (``gap_closed``:
+        share of the nominal's excess gap the step's refit closes), largest
+        gap_closed first."""
+        out = []
         for r in results:
-            # None: the candidate's validation error is not finite (its fit diverges there)
-            gcj = r["checks"]["gap_closed_step"]
             name = self.lib[r["i"]].name
-            self.candidates.append({
+            out.append({
                 "effect": name,
-                "gap_closed": gcj,
+                # None: the candidate's validation error is not finite (its fit diverges there)
+                "gap_closed": r["checks"]["gap_closed_step"],
                 "rms_validate": math.sqrt(r["mse"]) if math.isfinite(r["mse"]) else None,
                 "accepted": False,
                 "params": self.att["fitter"].effect_params(r["fit"], r["eff"])[name],
                 "checks": jsonable(r["checks"]),
             })
+        out.sort(key=lambda c: -(c["gap_closed"] if c["gap_closed"] is not None else -math.inf))
+        return out
+
+    def _record_step(self, step, results):
+        # the first step's candidates are the result's ``candidates`` (every
+        # effect alone); a later step's go with what they were refit on, so
+        # that a report can say why a second effect was not named
+        if step == 0:
+            self.candidates.extend(self._entries(results))
+        else:
+            self.later_steps.append({"on_top_of": list(self.accepted),
+                                     "rms_validate": math.sqrt(self.current["mse"]),
+                                     "accepted": None, "candidates": self._entries(results)})
 
     def attribute(self):
         """Greedy steps on the better nominal: add the best passing effect until
@@ -192,7 +207,7 @@ class GreedySteps:
         a = self.att
         self.current = {"fit": a["base"], "eff": [], "idx": [], "mse": a["mse"],
                         "mse_tr": a["base"]["rms"] ** 2, "pred": a["pred"]}
-        self.candidates, self.accepted = [], []
+        self.candidates, self.accepted, self.later_steps = [], [], []
         self.edges = StepEdges(self.rs.raw["train"], self.dt, math.sqrt(self.sigma2))
         self.steps = [{"label": "nominal", "rms_validate": math.sqrt(self.mse0)}]
         if a["core"] == "reference":
@@ -203,12 +218,15 @@ class GreedySteps:
             if self.current["mse"] <= (1.0 + self.floor_tol) * self.sigma2 or not pool:
                 break
             results = self.try_candidates(step, pool, t0)
-            if step == 0:
-                self._first_step_candidates(results)
+            self._record_step(step, results)
             best = selection.pick_best(results, self.tie_margin)
             if best is None:
                 break
             name = lib[best["i"]].name
+            if step > 0:
+                self.later_steps[-1]["accepted"] = name
+                for c in self.later_steps[-1]["candidates"]:
+                    c["accepted"] = c["effect"] == name
             self.accepted.append(name)
             self.current = {"fit": best["fit"], "eff": best["eff"], "idx": self.current["idx"] + [best["i"]],
                             "mse": best["mse"], "mse_tr": best["fit"]["rms"] ** 2, "pred": best["pv"]}

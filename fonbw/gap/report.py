@@ -3,7 +3,8 @@
 ``write_html(result, path)`` draws the localization plots (residual spectrum
 against the noise floor, RMS versus time, binned RMS versus input rate,
 amplitude, branch and time since reversal), the ranking table of the
-candidates, the hysteresis form with the loop-shape residual (FONBW's and
+candidates (and of each later greedy step's, with the check each one
+failed), the hysteresis form with the loop-shape residual (FONBW's and
 the reference's residual versus the input; needs the result object) and a
 waterfall nominal → form → +effect … → noise floor (the form after the
 effects when it was found on top of them), all from the result alone (a :class:`fonbw.gap.DiagnosisResult` or its ``to_dict()``); the
@@ -123,23 +124,39 @@ def _loop_figure(plt, loops):
     return _png(fig)
 
 
+_CANDIDATE_HEAD = ("<tr><th>effect</th><th>gap closed</th><th>val. RMS [µm]</th><th>ΔBIC</th><th>own ΔBIC</th>"
+                   "<th>bootstrap p10</th><th>held-out MSE ratio</th><th>accepted</th><th>parameters</th></tr>")
+
+
+def _candidate_row(c):
+    """A candidate's table row; "accepted" says which check failed when it is not."""
+    esc = html.escape
+    ch = c.get("checks", {})
+    bs = ch.get("bootstrap") or {}
+    lo = (ch.get("loro") or {}).get("ratios")
+    params = ", ".join(f"{k}={val:.4g}" for k, val in c["params"].items())
+    gc, rms = c["gap_closed"], c["rms_validate"]
+    outcome = "yes" if c["accepted"] else ("no: " + ch["failed"] if ch.get("failed") else "no")
+    return (f"<tr><td>{esc(c['effect'])}</td><td>{'–' if gc is None else f'{gc:.3f}'}</td>"
+            f"<td>{'–' if rms is None else f'{rms:.4g}'}</td>"
+            f"<td>{ch.get('delta_bic', math.nan):.4g}</td><td>{ch.get('own_bic', math.nan):.4g}</td>"
+            f"<td>{bs.get('p10', math.nan):.3f}</td>"
+            f"<td>{esc(', '.join(f'{q:.2f}' for q in lo)) if lo else '–'}</td>"
+            f"<td>{esc(outcome)}</td><td>{esc(params)}</td></tr>")
+
+
 def write_html(result, path):
     """Write a self-contained HTML report of a :func:`fonbw.gap.diagnose` result."""
     figs = _figures(result)
     v = result["verdict"]
     nom = result["nominal"]
     esc = html.escape
-    rows = []
-    for c in result["candidates"]:
-        ch = c.get("checks", {})
-        bs = ch.get("bootstrap", {})
-        lo = (ch.get("loro") or {}).get("ratios")
-        params = ", ".join(f"{k}={val:.4g}" for k, val in c["params"].items())
-        rows.append(
-            f"<tr><td>{esc(c['effect'])}</td><td>{c['gap_closed']:.3f}</td><td>{c['rms_validate']:.4g}</td>"
-            f"<td>{ch.get('delta_bic', math.nan):.4g}</td><td>{bs.get('p10', float('nan')):.3f}</td>"
-            f"<td>{esc(', '.join(f'{q:.2f}' for q in lo)) if lo else '–'}</td>"
-            f"<td>{'yes' if c['accepted'] else 'no'}</td><td>{esc(params)}</td></tr>")
+    rows = [_candidate_row(c) for c in result["candidates"]]
+    later = "".join(
+        f"<h3>On top of {esc(', '.join(st['on_top_of']))} (val. RMS {st['rms_validate']:.4g} µm): "
+        f"{esc('+' + st['accepted'] if st['accepted'] else 'nothing added')}</h3>"
+        f"<table>{_CANDIDATE_HEAD}{''.join(_candidate_row(c) for c in st['candidates'])}</table>"
+        for st in v.get("later_steps", []))
     recs = "".join(
         f"<tr><td>{esc(r['name'])}</td><td>{r['rms']:.4g}</td><td>{r['rms_pct_range']:.3g}</td>"
         f"<td>{r['excess_rms']:.4g}</td><td>{esc('; '.join(f'{a:.0f}–{b:.0f} Hz (×{m:.0f})' for a, b, m in r['spectrum']['excess_bands'][:5]))}</td></tr>"
@@ -171,8 +188,9 @@ noise floor σ = {nom['noise_floor']:.4g} µm.</p>
 <img src="{figs['spectrum_time']}" alt="residual spectrum and RMS versus time">
 <img src="{figs['features']}" alt="residual versus rate, amplitude, branch, time since reversal">
 <h2>Candidates (each refit jointly with the nominal model)</h2>
-<table><tr><th>effect</th><th>gap closed</th><th>val. RMS [µm]</th><th>ΔBIC</th><th>bootstrap p10</th>
-<th>held-out MSE ratio</th><th>accepted</th><th>parameters</th></tr>{''.join(rows)}</table>
+<table>{_CANDIDATE_HEAD}{''.join(rows)}</table>
+<h2>Later greedy steps (each candidate refit jointly with the effects accepted before it)</h2>
+{later or "<p>none</p>"}
 <h2>Hysteresis form</h2><p>{esc(form_txt)}.</p>{loop_img}
 <h2>Waterfall</h2><img src="{figs['waterfall']}" alt="waterfall">
 <table><tr><th>step</th><th>val. RMS [µm]</th><th>gap closed (cumulative)</th></tr>{wf}</table>

@@ -35,7 +35,8 @@ class DiagnosisResult(Mapping):
     verdict : dict
         ``effects`` (accepted, strongest first: in the order of acceptance), ``gap_closed``,
         ``unexplained``, ``at_noise_floor``, ``steps`` (the waterfall),
-        ``coverage``, ``params``, ``message``.
+        ``coverage``, ``params``, ``later_steps`` (every candidate of each
+        greedy step after the first, with its checks), ``message``.
     timing : dict
         Wall-clock time of the stages [s].
     records : dict

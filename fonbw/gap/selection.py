@@ -84,7 +84,7 @@ def retry_pool(pool, chosen, results, first_step):
 
 
 def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
-            form=None, start=None, remaining=None, at_bounds=None):
+            form=None, start=None, remaining=None, at_bounds=None, later_steps=None):
     """The verdict of a diagnosis.
 
     Parameters
@@ -116,13 +116,19 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         Where the gap left by the final model lies (:func:`fonbw.gap.checks.remaining`).
     at_bounds : list of str, optional
         Search variables of the nominal FONBW at a bound of their range.
+    later_steps : list of dict, optional
+        The greedy steps after the first, reported as they are: each with
+        ``on_top_of`` (the effects accepted before it), ``rms_validate``
+        [µm] of that configuration, ``accepted`` (the effect it added, or
+        None) and ``candidates`` (entries like the first step's).
 
     Returns
     -------
     dict
         ``effects``, ``gap_closed`` (by form and effects together),
         ``unexplained``, ``at_noise_floor``, ``steps``, ``waterfall``,
-        ``form``, ``start``, ``coverage``, ``remaining``, ``params``, ``message``.
+        ``form``, ``start``, ``coverage``, ``remaining``, ``params``,
+        ``later_steps``, ``message``.
     """
     total = (mse0 - mse) / excess0 if excess0 > 0 and not at_floor else 0.0
     # the waterfall counts from the nominal's RMS as it reports it, so that the
@@ -153,6 +159,7 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         "coverage": coverage,
         "remaining": list(remaining or []),
         "params": params,
+        "later_steps": list(later_steps or []),
     }
     named = (["the hysteresis form"] if form_named else []) + out["effects"]
     if at_floor:
