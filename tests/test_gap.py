@@ -885,6 +885,33 @@ def test_a_nominal_of_its_own_that_diverges_is_refit_bounded():
     assert d.base["rms"] < 0.02 * span
 
 
+def test_a_second_identification_that_diverges_is_not_taken(monkeypatch):
+    # Harness scenario 38028 (rate-dependent core, no effect, records starting
+    # mid-drive): the second, longer FONBW identification fits the training
+    # records better with sigma = 2e-12 and diverges on the 20-Hz validation
+    # sine; the diagnosis ended there. The first nominal stays and it goes on.
+    import blind_gap as bg
+    import gap_cores as gc
+    import gap_truth as tr
+
+    from fonbw.gap.attribute import Diagnosis
+
+    seed = 38028
+    sc = tr.draw_scenario(seed, scale=bg.DEFAULTS["scale"], family=tr.scenario_family(seed, tuple(gc.FAMILIES)),
+                          mid_drive=bg.DEFAULTS["mid_drive"])
+    taken, real = [], Diagnosis.try_nominal
+    monkeypatch.setattr(Diagnosis, "try_nominal", lambda self, fit: taken.append((fit, real(self, fit))) or taken[-1][1])
+    d = Diagnosis(sc["train"], sc["validate"], seed=seed)
+    d.fit_nominal()
+    d.localize_residual()
+    first = d.base
+    d.form_stage()
+    ((second, ok),) = taken
+    assert not ok and second["rms"] < first["rms"]
+    assert d.fitter.model(second).params["sigma"] < 0.5 and d.base is first
+    assert all(np.all(np.isfinite(p)) for p in d.p0_va + d.yref_tr) and d.form["gap_closed"] is not None
+
+
 def test_a_candidate_that_diverges_on_validation_is_listed_without_a_gap():
     # a refit whose validation error is not finite has no gap closed (None in its
     # checks); a step still lists it, last, and the JSON carries null

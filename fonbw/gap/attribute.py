@@ -408,6 +408,18 @@ class Diagnosis(GreedySteps):
         self.p0_va = self.cut_va(self.fitter.predict(val, fit, [], [np.zeros(len(r.u)) for r in val]))
         self._check_finite(train, self.yref_tr, val, self.p0_va)
 
+    def try_nominal(self, fit):
+        """Take `fit` as the nominal (:meth:`set_nominal`) unless it diverges on
+        a record; then the nominal before it stays. Returns whether it was taken."""
+        before = self.base
+        try:
+            self.set_nominal(fit)
+        except NominalDiverges as e:
+            self.say(f"{e}; the nominal before it stays")
+            self.set_nominal(before)
+            return False
+        return True
+
     def _check_finite(self, train, p_tr, val, p_va):
         """Refuse, naming the record, a nominal whose prediction is not finite.
 
