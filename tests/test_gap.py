@@ -1104,7 +1104,7 @@ def test_a_block_without_which_its_refit_diverges_accounts_for_all_of_it():
     from fonbw.gap.greedy import GreedySteps
 
     def own(rms_with, rms_without):
-        fitter = SimpleNamespace(cost=lambda X, eff, TH, yref: np.array([rms_without]))
+        fitter = SimpleNamespace(cost_at=lambda x, eff, th, yref: rms_without)
         me = SimpleNamespace(att={"fitter": fitter, "yref_tr": None})
         fit = {"x": np.zeros(3), "th": [np.zeros(1), np.zeros(2)], "rms": rms_with}
         return GreedySteps._own_bic(me, fit, [None, None], 2, 1000)

@@ -404,6 +404,24 @@ class Fitter:
                 out[p] = math.sqrt(float(np.mean(r * r)))
         return out
 
+    def cost_at(self, x, effects, th, yrefs):
+        """Training RMS [µm] of one configuration: search vector `x`, effect parameters `th`."""
+        return float(self.cost(np.asarray(x, dtype=float)[None, :], effects,
+                               [np.asarray(t, dtype=float)[None, :] for t in th], yrefs)[0])
+
+    def best_grid_point(self, x, effects, th, yrefs, new):
+        """The grid point of the block ``effects[new]`` with the lowest training
+        cost, everything else held at (`x`, `th`): (`th` with it, that cost)."""
+        G = effects[new].grid
+        X = np.repeat(np.asarray(x, dtype=float)[None, :], len(G), axis=0)
+        TH = [np.repeat(np.asarray(t, dtype=float)[None, :], len(G), axis=0) for t in th]
+        TH[new] = G
+        c = self.cost(X, effects, TH, yrefs)
+        j = int(np.argmin(c))
+        th = list(th)
+        th[new] = G[j]
+        return th, float(c[j])
+
     def split(self, Z, effects):
         Z = np.atleast_2d(Z)
         X = Z[:, :self.nx]
@@ -445,13 +463,8 @@ class Fitter:
         th0 = [np.asarray(t, dtype=float) for t in th0]
         nfev = 0
         if new is not None and len(effects[new].names):
-            G = effects[new].grid
-            X = np.repeat(np.asarray(x0)[None, :], len(G), axis=0)
-            TH = [np.repeat(t[None, :], len(G), axis=0) for t in th0]
-            TH[new] = G
-            c = self.cost(X, effects, TH, yrefs)
-            nfev += len(G)
-            th0[new] = G[int(np.argmin(c))]
+            th0, _ = self.best_grid_point(x0, effects, th0, yrefs, new)
+            nfev += len(effects[new].grid)
         bounds = list(self.core.local_bounds(x0)) if local else list(self.core.bounds)
         logs = list(self.core.log_scale)
         for e in effects:

@@ -57,19 +57,10 @@ class GreedySteps:
         fitter, yref_tr = a["fitter"], a["yref_tr"]
         th0 = [start["th"][j] if j < len(start["th"]) else (e.grid[0] if len(e.names) else np.zeros(0))
                for j, e in enumerate(eff)]
-        new_i = len(eff) - 1
-        th_s = list(th0)
-        if len(eff[new_i].names):
-            G = eff[new_i].grid
-            X = np.repeat(np.asarray(start["x"])[None, :], len(G), axis=0)
-            TH = [np.repeat(np.asarray(t, dtype=float)[None, :], len(G), axis=0) for t in th_s]
-            TH[new_i] = G
-            c = fitter.cost(X, eff, TH, yref_tr)
-            th_s[new_i] = G[int(np.argmin(c))]
-            c_s = float(np.min(c))
+        if len(eff[-1].names):
+            th_s, c_s = fitter.best_grid_point(start["x"], eff, th0, yref_tr, len(eff) - 1)
         else:
-            c_s = float(fitter.cost(np.asarray(start["x"])[None, :], eff,
-                                    [np.asarray(t, dtype=float)[None, :] for t in th_s], yref_tr)[0])
+            th_s, c_s = list(th0), fitter.cost_at(start["x"], eff, th0, yref_tr)
         return th0, th_s, c_s
 
     def _search_and_polish(self, eff, start, a, seed, grid):
@@ -83,7 +74,7 @@ class GreedySteps:
                                  seed=seed, new=len(eff) - 1, local=False, popsize=a["popsize"])
         # the coarse optimum can sit worse at the full rate than the start
         # itself (the GL sums depend on the step): polish the better of the two
-        c_c = float(fitter.cost(fc["x"][None, :], eff, [t[None, :] for t in fc["th"]], yref_tr)[0])
+        c_c = fitter.cost_at(fc["x"], eff, fc["th"], yref_tr)
         x1, th1 = (fc["x"], fc["th"]) if c_c <= c_s else (np.asarray(start["x"]), th_s)
         return fitter.refit(eff, x1, th1, yref_tr, evals=self.refit_evals, seed=seed)
 
@@ -136,9 +127,7 @@ class GreedySteps:
         the accepted blocks' parameters for moving in the refit. −inf when
         the refit diverges without the block (it is what keeps the model
         bounded), +inf when the refit itself does not fit."""
-        X = np.asarray(fit["x"], dtype=float)[None, :]
-        TH = [np.asarray(t, dtype=float)[None, :] for t in fit["th"][:-1]]
-        rms = float(self.att["fitter"].cost(X, eff[:-1], TH, self.att["yref_tr"])[0])
+        rms = self.att["fitter"].cost_at(fit["x"], eff[:-1], fit["th"][:-1], self.att["yref_tr"])
         if not (math.isfinite(rms) and math.isfinite(fit["rms"])):
             return -math.inf if math.isfinite(fit["rms"]) else math.inf
         return checks.bic_change(ntr, fit["rms"] ** 2, rms ** 2, k)
