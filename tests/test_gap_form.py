@@ -522,7 +522,7 @@ def _alone_case(drop_s2, delta_bic=-500.0, hum_s2=60.0):
               "bootstrap": None, "where": None},
         steps=[{"label": "nominal", "rms_validate": np.sqrt(mse0)}],
         current={"fit": {"rms": 0.05, "th": []}, "eff": [], "idx": [], "pred": [p0], "mse": mse0, "mse_tr": 25e-4},
-        base_ref={"rms": 0.03, "th": []}, att={"core": "fonbw"}, say=lambda *a: None,
+        base_ref={"rms": 0.03, "th": []}, att={"core": "fonbw"}, say=lambda *a: None, timing={},
         reference_att=lambda: {"core": "reference", "fitter": ref_fitter})
 
 
@@ -561,13 +561,29 @@ def test_form_with_no_effect_named_needs_a_noise_variance_and_a_lower_bic(drop_s
     assert not out["passed"] and out["drop_sigma2"] == pytest.approx(drop_s2, rel=1e-3)
 
 
-def test_form_with_no_effect_named_not_asked_when_the_reference_loses():
+@pytest.mark.parametrize("case", ["reference loses", "at the floor", "form already material", "effect accepted"])
+def test_form_with_no_effect_named_asked_only_when_nothing_else_decides(monkeypatch, case):
     from fonbw.gap import form as fm
 
+    asked = []
+    monkeypatch.setattr(fm, "form_alone", lambda d: asked.append(d) or {"passed": False, "drop_sigma2": 0.0})
     d = _alone_case(8.0)
-    d.mse_ref = d.mse0 + 1e-6
     fm.judge_on_effects(d)
-    assert not d.form["material"] and "found_alone" not in d.form and len(d.steps) == 1
+    assert len(asked) == 1   # the case itself asks
+    asked.clear()
+    d = _alone_case(8.0)
+    if case == "reference loses":
+        d.mse_ref = d.mse0 + 1e-6
+    elif case == "at the floor":
+        d.at_floor = True
+    elif case == "form already material":
+        d.form["material"] = True
+    else:
+        # judged on top of the effect instead (here: on the reference, where it stands or goes)
+        monkeypatch.setattr(fm, "_keep_or_revoke", lambda d: {"passed": True, "gap_closed_after_effects": None})
+        d.accepted, d.att = ["creep"], {"core": "reference"}
+    fm.judge_on_effects(d)
+    assert asked == []
 
 
 def test_form_stands_when_fonbw_with_the_effects_diverges():

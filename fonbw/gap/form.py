@@ -391,17 +391,18 @@ def judge_on_effects(d):
     (:func:`confirm_form`); on FONBW, it can be named after them
     (:func:`form_after_effects`). Updates ``d.form``, ``d.current``,
     ``d.att`` and ``d.steps``."""
+    # the reference alone must beat FONBW alone on validation before a form is
+    # named late: one that wins only beside an effect takes up that block's
+    # misfit (a one-pole amplifier for a two-pole one on a FONBW core), not loop shape
+    reference_wins = not d.at_floor and d.mse_ref < d.mse0
     if not d.accepted:
-        if not d.form["material"] and not d.at_floor and d.mse_ref < d.mse0:
+        if not d.form["material"] and reference_wins:
             _name_alone(d)
         return
     t0 = time.perf_counter()
     if d.att["core"] == "reference":
         out = _keep_or_revoke(d)
-    elif d.at_floor or not d.mse_ref < d.mse0:
-        # the reference alone must beat FONBW alone on validation: one that
-        # wins only beside an effect takes up that block's misfit (a one-pole
-        # amplifier for a two-pole one on a FONBW core), not loop shape
+    elif not reference_wins:
         return
     else:
         out = _name_after(d)
@@ -479,9 +480,11 @@ def form_alone(d):
 
 
 def _name_alone(d):
+    t0 = time.perf_counter()
     out = form_alone(d)
+    d.timing["form_alone_s"] = dt_s = time.perf_counter() - t0
     d.say(f"form with no effect named: lowers the validation MSE by {out['drop_sigma2']:.3g} σ², "
-          f"{'material' if out['passed'] else 'not material'}")
+          f"{'material' if out['passed'] else 'not material'} ({dt_s:.1f} s)")
     if not out["passed"]:
         return
     d.form.update(material=True, found_alone=True, drop_sigma2=out["drop_sigma2"], bootstrap=out["bootstrap"],
