@@ -128,21 +128,31 @@ _CANDIDATE_HEAD = ("<tr><th>effect</th><th>gap closed</th><th>val. RMS [µm]</th
                    "<th>bootstrap p10</th><th>held-out MSE ratio</th><th>accepted</th><th>parameters</th></tr>")
 
 
+def _outcome(c):
+    """What became of a candidate, in words: a first-step entry is ``accepted``
+    when the verdict names the effect, whichever step added it."""
+    failed = (c.get("checks") or {}).get("failed")
+    if c["accepted"]:
+        return f"yes, at a later step (here: {failed})" if failed else "yes"
+    if failed:
+        return "no: " + failed
+    return "no: passed, another was added" if (c.get("checks") or {}).get("passed") else "no"
+
+
 def _candidate_row(c):
-    """A candidate's table row; "accepted" says which check failed when it is not."""
+    """A candidate's table row, with what became of it (:func:`_outcome`)."""
     esc = html.escape
     ch = c.get("checks", {})
     bs = ch.get("bootstrap") or {}
     lo = (ch.get("loro") or {}).get("ratios")
     params = ", ".join(f"{k}={val:.4g}" for k, val in c["params"].items())
     gc, rms = c["gap_closed"], c["rms_validate"]
-    outcome = "yes" if c["accepted"] else ("no: " + ch["failed"] if ch.get("failed") else "no")
     return (f"<tr><td>{esc(c['effect'])}</td><td>{'–' if gc is None else f'{gc:.3f}'}</td>"
             f"<td>{'–' if rms is None else f'{rms:.4g}'}</td>"
             f"<td>{ch.get('delta_bic', math.nan):.4g}</td><td>{ch.get('own_bic', math.nan):.4g}</td>"
             f"<td>{bs.get('p10', math.nan):.3f}</td>"
             f"<td>{esc(', '.join(f'{q:.2f}' for q in lo)) if lo else '–'}</td>"
-            f"<td>{esc(outcome)}</td><td>{esc(params)}</td></tr>")
+            f"<td>{esc(_outcome(c))}</td><td>{esc(params)}</td></tr>")
 
 
 def write_html(result, path):
