@@ -277,7 +277,7 @@ def _cosim_sections(res):
 
 
 def _gap_sections(out_dir, bench, res):
-    from .gap.selection import form_text
+    from .gap.selection import form_text, outcome_text
 
     secs = []
     gap = res["gap"]
@@ -286,9 +286,8 @@ def _gap_sections(out_dir, bench, res):
         nom = gap["nominal"]
         v = gap["verdict"]
         body = (f"Nominal validation RMS {nom['rms_validate']:.4g} µm, noise floor {nom['noise_floor']:.4g} µm.\n\n"
-                + md_table(["effect", "gap closed", "accepted"],
-                           [[c["effect"], c["gap_closed"], "yes" if c.get("accepted") else "no"]
-                            for c in gap["candidates"]])
+                + md_table(["effect", "gap closed", "named"],
+                           [[c["effect"], _gc(c), outcome_text(c)] for c in gap["candidates"]])
                 + f"\n\n**Verdict**: {v.get('message', '')}. Hysteresis form: "
                 + form_text(v.get("form"))
                 + f"; unmodelled effects {', '.join(v['effects']) or 'none'}; gap closed by both {v['gap_closed']:.3g}; "
@@ -296,6 +295,7 @@ def _gap_sections(out_dir, bench, res):
                 + "\n\n" + md_table(["step", "validation RMS [µm]", "gap closed (cumulative)"],
                                      [[w["step"], w["rms_validate"], w["gap_closed_cum"]]
                                       for w in v.get("waterfall", [])])
+                + _later_steps_text(v.get("later_steps", []))
                 + f"\n\nThe bench's own settings: creep = {bench.creep}, dynamics = {bench.dynamics}, "
                 f"amplifier = {bench.amplifier} (the diagnosis was not told).\n\nFull diagnosis: `gap/gap_report.html`.")
         secs.append(Section("Sim-to-real gap", "Where the identified FONBW model misses the bench, how much "
@@ -304,6 +304,24 @@ def _gap_sections(out_dir, bench, res):
                             "gap.", body,
                             [(p, "Gap closed per candidate effect.") for p in _gap_figures(gap, d)]))
     return secs
+
+
+def _gc(c):
+    """A candidate's gap closed for a table ("–" where its fit diverges on validation)."""
+    return "–" if c["gap_closed"] is None else c["gap_closed"]
+
+
+def _later_steps_text(steps):
+    """The later greedy steps as a table: why a further effect was or was not named."""
+    from .gap.selection import outcome_text
+
+    rows = [[", ".join(st["on_top_of"]), c["effect"], _gc(c), outcome_text(c)]
+            for st in steps for c in st["candidates"]]
+    if not rows:
+        return ""
+    return ("\n\nLater steps, each candidate refit on top of the effects named before it (gap closed: "
+            "the share it adds of the gap the nominal they are attributed on leaves, as above):\n\n"
+            + md_table(["on top of", "effect", "gap closed", "named"], rows))
 
 
 def _run_sections(st, seed, quick):

@@ -49,6 +49,24 @@ def test_report_has_every_section_with_numbers(demo_dir):
         assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_gap_section_says_what_became_of_every_candidate(demo_dir):
+    import json
+
+    from fonbw.gap.selection import outcome_text
+
+    gap = _section((demo_dir / "report.md").read_text(encoding="utf-8"), "Sim-to-real gap")
+    res = json.loads((demo_dir / "gap" / "gap.json").read_text(encoding="utf-8"))
+    for c in res["candidates"]:
+        assert re.search(rf"^\| {c['effect']} \| [^|]+ \| {re.escape(outcome_text(c))} \|$", gap, re.M)
+    # the bench's effects beyond the first are named, or refused, at later steps
+    steps = res["verdict"]["later_steps"]
+    assert len(steps) == len(res["verdict"]["effects"]) >= 1
+    for st in steps:
+        for c in st["candidates"]:
+            row = rf"^\| {re.escape(', '.join(st['on_top_of']))} \| {c['effect']} \| [^|]+ \| {re.escape(outcome_text(c))} \|$"
+            assert re.search(row, gap, re.M)
+
+
 def _chromium():
     for name in ("chromium", "chromium-browser", "google-chrome"):
         p = shutil.which(name)

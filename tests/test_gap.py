@@ -830,7 +830,7 @@ def test_later_steps_say_why_no_second_effect_was_named(stroke_limit, tmp_path):
 
 
 def test_the_report_says_what_became_of_each_candidate():
-    from fonbw.gap.report import _outcome
+    from fonbw.gap.selection import outcome_text as _outcome
 
     assert _outcome({"accepted": True, "checks": {"passed": True, "failed": None}}) == "yes"
     # named at the second step, after failing at the first

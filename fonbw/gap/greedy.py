@@ -160,8 +160,8 @@ class GreedySteps:
 
     def _entries(self, results):
         """One JSON-able entry per candidate of a greedy step (``gap_closed``:
-        share of the nominal's excess gap the step's refit closes), largest
-        gap_closed first."""
+        what the step's refit closes, as a share of the excess gap of the
+        nominal the effects are attributed on), largest gap_closed first."""
         out = []
         for r in results:
             name = self.lib[r["i"]].name

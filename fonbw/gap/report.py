@@ -20,7 +20,7 @@ import math
 
 from ..io import atomic_open
 from .checks import flag_text
-from .selection import form_text
+from .selection import form_text, outcome_text
 
 __all__ = ["write_json", "write_html"]
 
@@ -128,19 +128,8 @@ _CANDIDATE_HEAD = ("<tr><th>effect</th><th>gap closed</th><th>val. RMS [µm]</th
                    "<th>bootstrap p10</th><th>held-out MSE ratio</th><th>accepted</th><th>parameters</th></tr>")
 
 
-def _outcome(c):
-    """What became of a candidate, in words: a first-step entry is ``accepted``
-    when the verdict names the effect, whichever step added it."""
-    failed = (c.get("checks") or {}).get("failed")
-    if c["accepted"]:
-        return f"yes, at a later step (here: {failed})" if failed else "yes"
-    if failed:
-        return "no: " + failed
-    return "no: passed, another was added" if (c.get("checks") or {}).get("passed") else "no"
-
-
 def _candidate_row(c):
-    """A candidate's table row, with what became of it (:func:`_outcome`)."""
+    """A candidate's table row, with what became of it (:func:`~fonbw.gap.selection.outcome_text`)."""
     esc = html.escape
     ch = c.get("checks", {})
     bs = ch.get("bootstrap") or {}
@@ -152,7 +141,7 @@ def _candidate_row(c):
             f"<td>{ch.get('delta_bic', math.nan):.4g}</td><td>{ch.get('own_bic', math.nan):.4g}</td>"
             f"<td>{bs.get('p10', math.nan):.3f}</td>"
             f"<td>{esc(', '.join(f'{q:.2f}' for q in lo)) if lo else '–'}</td>"
-            f"<td>{esc(_outcome(c))}</td><td>{esc(params)}</td></tr>")
+            f"<td>{esc(outcome_text(c))}</td><td>{esc(params)}</td></tr>")
 
 
 def write_html(result, path):

@@ -197,6 +197,19 @@ def form_text(form):
     return text
 
 
+def outcome_text(c):
+    """What became of a candidate entry (``accepted``, ``checks``), in words
+    (the demo's report and the HTML report). A first-step entry is accepted
+    when the verdict names the effect, whichever step added it."""
+    ch = c.get("checks") or {}
+    failed = ch.get("failed")
+    if c["accepted"]:
+        return f"yes, at a later step (here: {failed})" if failed else "yes"
+    if failed:
+        return "no: " + failed
+    return "no: passed, another was added" if ch.get("passed") else "no"
+
+
 def _left_text(remaining, at_bounds, unexplained):
     """Where the unexplained part of a gap lies, for the verdict's message ('' if nowhere in particular)."""
     text = ""
