@@ -298,6 +298,46 @@ def test_noise_floor_ignores_low_frequencies_and_transients():
     assert math.sqrt(noise_floor([r], DT)) == pytest.approx(sig, rel=0.05)
 
 
+def _tone_case(rng, line_amp, harmonic_in_model):
+    """A 1-Hz drive whose model output (10 µm swing, a 9th harmonic of 0.3 µm)
+    leaves white noise (σ = 0.01 µm), a shape misfit at the 9th harmonic
+    (0.05 µm) and a 50-Hz line of amplitude `line_amp` [µm]."""
+    from fonbw.gap.localize import tones
+
+    t = np.arange(50_000) * DT   # 10 s at 5 kHz: 1-Hz bins
+    h9 = np.sin(2 * np.pi * 9 * t)
+    pred = 5 - 5 * np.cos(2 * np.pi * t) + (0.3 * h9 if harmonic_in_model else 0.0)
+    y = pred + 0.05 * h9 + line_amp * np.sin(2 * np.pi * 50 * t + 0.4) + rng.normal(0, 0.01, t.size)
+    rec = Record.from_arrays(u=12 * pred, y=y, dt=DT)
+    excess = 0.05 ** 2 / 2 + line_amp ** 2 / 2
+    return tones([rec], [pred], DT, 0.01 ** 2), excess
+
+
+def test_a_line_the_model_does_not_make_is_named_with_its_share_of_what_is_left():
+    rng = np.random.default_rng(5)
+    found, excess = _tone_case(rng, 0.1, harmonic_in_model=True)
+    # the 50-Hz line holds 0.005 of the 0.00625 µm² left; the 9th harmonic's
+    # misfit is a line too, but the model's output carries 36 times its power there
+    assert [t["hz"] for t in found] == [50.0]
+    assert found[0]["share"] == pytest.approx((0.1 ** 2 / 2) / excess, abs=0.01)
+    # without the harmonic in the model's output the misfit (0.2 of what is left) is named as well
+    found, excess = _tone_case(rng, 0.1, harmonic_in_model=False)
+    assert [t["hz"] for t in found] == [50.0, 9.0]
+    assert found[1]["share"] == pytest.approx((0.05 ** 2 / 2) / excess, abs=0.01)
+    # a line under a tenth of what is left is not
+    found, _ = _tone_case(rng, 0.015, harmonic_in_model=True)
+    assert found == []
+    # the verdict says so where the gap is left unexplained
+    from fonbw.gap.selection import verdict
+
+    kw = dict(mse0=0.01, excess0=0.0099, at_floor=False, coverage=[], params={},
+              steps=[{"label": "nominal", "rms_validate": 0.1}])
+    v = verdict([], mse=0.009, tones=[{"hz": 50.0, "share": 0.8}], **kw)
+    assert v["tones"] == [{"hz": 50.0, "share": 0.8}]
+    assert "a narrow line the model's own output lacks holds 80 % of what is left at 50 Hz" in v["message"]
+    assert "narrow line" not in verdict([], mse=0.009, **kw)["message"]
+
+
 def test_branch_and_reversal_age_on_triangle():
     u = np.r_[np.linspace(0, 1, 11), np.linspace(0.9, 0, 10), np.zeros(5)]
     s = branch(u)

@@ -83,7 +83,7 @@ from . import effects as fx
 from . import selection
 from .fitter import KIND, Fitter, decimate, nominal_search, x_from_model
 from .greedy import GreedySteps
-from .localize import localize, noise_floor
+from .localize import localize, noise_floor, tones
 from .result import DiagnosisResult
 from .starts import RecordStarts, cut
 from .workers import Pool, default_workers
@@ -511,7 +511,8 @@ class Diagnosis(GreedySteps):
             params=self.att["fitter"].effect_params(self.current["fit"], self.current["eff"]),
             form=self.form, start=self.rs.report(),
             remaining=checks.remaining(self.val_s, self.current["pred"], self.sigma2, self.coverage),
-            at_bounds=at_bounds, later_steps=self.later_steps)
+            at_bounds=at_bounds, later_steps=self.later_steps,
+            tones=tones(self.val_s, self.current["pred"], self.dt, self.sigma2))
         self.timing["total_s"] = time.perf_counter() - self.t_start
         given = self.model_given
         nominal = {

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import welch
 
-__all__ = ["noise_floor", "localize", "reversal_age", "branch"]
+__all__ = ["noise_floor", "localize", "tones", "reversal_age", "branch", "TONE_SHARE", "TONE_PREDICTED"]
 
 
 def _psd(r, dt, nperseg=256):
@@ -151,6 +151,72 @@ def localize(records, predictions, dt, sigma2, n_time_bins=20, n_bins=8):
                       np.concatenate(BR), np.concatenate(AGE), dt, n_bins)
     dom = max(feats, key=lambda k: feats[k]["eta2"])
     return {"records": out, "features": feats, "dominant": dom, "noise_floor": float(sigma2)}
+
+
+#: A narrow line in what a model leaves is reported when it holds at least
+#: this share of the excess left (Σ n_i max(MSE_i − σ², 0)) ...
+TONE_SHARE = 0.1
+#: ... and the model's own output carries less than this share of the line's
+#: power in the same bins: a misfit of what the model makes (a harmonic of a
+#: drive that the hysteresis bends) comes with it, a disturbance added to the
+#: output (mains pickup) does not. Bins within two of a drive's fundamental
+#: hold the model's own line, so no line is named there.
+TONE_PREDICTED = 0.1
+
+
+def tones(records, predictions, dt, sigma2, resolution=1.0, most=3):
+    """Narrow lines in the residual of `predictions` that the model's own output lacks.
+
+    Parameters
+    ----------
+    records, predictions
+        Validation records (scored part) and a model's outputs [µm] on them.
+    dt : float
+        Sampling period [s].
+    sigma2 : float
+        Noise floor σ² [µm²], taken off every bin (white noise: 2σ²dt one-sided).
+    resolution : float
+        Welch bin width [Hz] (records shorter than two bins' windows are left out).
+    most : int
+        Largest number of lines looked at, strongest first.
+
+    Returns
+    -------
+    list of dict
+        ``hz`` (the line's frequency [Hz]) and ``share`` (of the excess left,
+        pooled over the records) of each line that holds at least
+        :data:`TONE_SHARE` and whose bins the model's output fills to less
+        than :data:`TONE_PREDICTED` of it; strongest first.
+    """
+    fs = 1.0 / dt
+    nper = int(round(fs / resolution))
+    total, E, P, f = 0.0, 0.0, 0.0, None
+    for rec, yhat in zip(records, predictions):
+        r = np.asarray(rec.y, dtype=float) - yhat
+        n = r.size
+        total += n * max(float(np.mean(r * r)) - sigma2, 0.0)
+        if n < 2 * nper:
+            continue
+        f, pr = welch(r, fs=fs, nperseg=nper, detrend="constant")
+        _, pp = welch(np.asarray(yhat, dtype=float), fs=fs, nperseg=nper, detrend="constant")
+        df = f[1] - f[0]
+        # energies per bin [µm² × samples], comparable with the pooled excess
+        E = E + n * np.maximum(pr - 2.0 * sigma2 * dt, 0.0) * df
+        P = P + n * pp * df
+    if f is None or not total > 0:
+        return []
+    out, left = [], np.array(E, dtype=float)
+    left[0] = 0.0  # the mean is an offset, not a line
+    for _ in range(most):
+        k = int(np.argmax(left))
+        lo, hi = max(1, k - 2), min(left.size, k + 3)   # a Hann window's main lobe
+        line = float(np.sum(E[lo:hi]))
+        if line < TONE_SHARE * total:
+            break
+        if float(np.sum(P[lo:hi])) < TONE_PREDICTED * line:
+            out.append({"hz": float(f[k]), "share": line / total})
+        left[lo:hi] = 0.0
+    return out
 
 
 def _excess_bands(f, p, floor_psd):

@@ -84,7 +84,7 @@ def retry_pool(pool, chosen, results, first_step):
 
 
 def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
-            form=None, start=None, remaining=None, at_bounds=None, later_steps=None):
+            form=None, start=None, remaining=None, at_bounds=None, later_steps=None, tones=None):
     """The verdict of a diagnosis.
 
     Parameters
@@ -121,6 +121,9 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         ``on_top_of`` (the effects accepted before it), ``rms_validate``
         [µm] of that configuration, ``accepted`` (the effect it added, or
         None) and ``candidates`` (entries like the first step's).
+    tones : list of dict, optional
+        Narrow lines in what the final model leaves that its own output lacks
+        (:func:`fonbw.gap.localize.tones`: ``hz``, ``share``).
 
     Returns
     -------
@@ -128,7 +131,7 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         ``effects``, ``gap_closed`` (by form and effects together),
         ``unexplained``, ``at_noise_floor``, ``steps``, ``waterfall``,
         ``form``, ``start``, ``coverage``, ``remaining``, ``params``,
-        ``later_steps``, ``message``.
+        ``later_steps``, ``tones``, ``message``.
     """
     total = (mse0 - mse) / excess0 if excess0 > 0 and not at_floor else 0.0
     # the waterfall counts from the nominal's RMS as it reports it, so that the
@@ -160,6 +163,7 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         "remaining": list(remaining or []),
         "params": params,
         "later_steps": list(later_steps or []),
+        "tones": list(tones or []),
     }
     named = (["the hysteresis form"] if form_named else []) + out["effects"]
     if at_floor:
@@ -171,7 +175,7 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
     else:
         out["message"] = f"explained by {', '.join(named)}"
     if not at_floor and total < 0.9:
-        out["message"] += _left_text(out["remaining"], at_bounds, out["unexplained"])
+        out["message"] += _left_text(out["remaining"], at_bounds, out["unexplained"]) + _tone_text(out["tones"])
     if start and start.get("mid_drive"):
         out["message"] += "; " + start["message"]
     return out
@@ -208,6 +212,17 @@ def outcome_text(c):
     if failed:
         return "no: " + failed
     return "no: passed, another was added" if ch.get("passed") else "no"
+
+
+def _tone_text(lines):
+    """The lines in what is left that the model's output lacks, for the verdict's message ('' if none)."""
+    if not lines:
+        return ""
+    what = " and ".join(f"{100 * t['share']:.0f} % of what is left at {t['hz']:.0f} Hz" for t in lines)
+    lines_ = "a narrow line the model's own output lacks holds" if len(lines) == 1 else \
+        "narrow lines the model's own output lacks hold"
+    return (f"; {lines_} {what}: something the model does not make from the input (mains pickup, at 50 or "
+            "60 Hz and their harmonics, or a lightly damped mode it lacks)")
 
 
 def _left_text(remaining, at_bounds, unexplained):
