@@ -172,7 +172,7 @@ def _verdict(res):
             "noise_floor": nom.get("noise_floor"), "rms0": nom.get("rms_validate"),
             "candidates": [{k: c.get(k) for k in ("effect", "gap_closed", "accepted", "checks", "params")}
                            for c in d.get("candidates", [])],
-            "later_steps": v.get("later_steps", []),
+            "later_steps": v.get("later_steps", []), "tones": v.get("tones", []),
             "effect_params": v.get("params"), "remaining": v.get("remaining"), "at_bounds": nom.get("at_bounds")}
 
 

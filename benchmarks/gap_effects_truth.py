@@ -22,7 +22,7 @@ from scipy.interpolate import PchipInterpolator
 
 from gap_cores import clip_input
 
-__all__ = ["TRUTH_EFFECTS", "LEGACY_POOL", "POOL", "LOWER_RAIL", "input_side", "output_side", "strength",
+__all__ = ["TRUTH_EFFECTS", "LEGACY_POOL", "POOL", "HUM_HZ", "LOWER_RAIL", "input_side", "output_side", "strength",
            "strength_params", "clipped_share"]
 
 TRUTH_EFFECTS = ("creep", "dynamics", "amplifier", "delay", "drift", "saturation", "hum", "clip")
@@ -31,6 +31,8 @@ TRUTH_EFFECTS = ("creep", "dynamics", "amplifier", "delay", "drift", "saturation
 # clip existed: drawing from it keeps their records bit for bit
 LEGACY_POOL = ("creep", "dynamics", "amplifier", "delay", "drift", "saturation")
 POOL = LEGACY_POOL + ("clip",)
+# mains pickup [Hz]; the hum adds a third of its amplitude at three times this
+HUM_HZ = 50.0
 # a piezo amplifier's usual lower rail [V]; the drives never go below 0 V, so
 # only the upper rail clips
 LOWER_RAIL = -30.0
@@ -168,7 +170,7 @@ def output_side(y, eff, dt, rng):
     if "hum" in eff:
         a = eff["hum"]["amp"]
         ph = rng.uniform(0, 2 * math.pi, 2)
-        y = y + a * np.sin(2 * math.pi * 50 * t + ph[0]) + a / 3 * np.sin(2 * math.pi * 150 * t + ph[1])
+        y = y + a * np.sin(2 * math.pi * HUM_HZ * t + ph[0]) + a / 3 * np.sin(2 * math.pi * 3 * HUM_HZ * t + ph[1])
     return y
 
 

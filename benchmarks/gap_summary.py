@@ -21,6 +21,8 @@ from collections import Counter
 
 import numpy as np
 
+from gap_effects_truth import HUM_HZ
+
 __all__ = ["MATERIAL", "UNABSORBED", "FORM_ABSENT", "LIBRARY", "load", "stats", "summary"]
 
 MATERIAL = 2.0
@@ -77,7 +79,9 @@ def stats(rows):
         FONBW), ``top1_mid_drive`` (of these, a record not at rest),
         ``null_named`` (null cases naming an effect), ``form_material_named``,
         ``form_absent_named``, ``form_on_fonbw`` (form named on FONBW cores),
-        ``pairs_recall``, ``pairs_precision``; floats ``gap_closed_median``
+        ``pairs_recall``, ``pairs_precision``, ``hum_line`` (hum cases whose
+        50-Hz line the verdict names) and ``line_without_hum`` (other cases
+        naming a line; both over rows that carry ``tones``); floats ``gap_closed_median``
         and ``gap_closed_p10`` (None without cases) with ``gap_closed_n``;
         ``confusion`` {injected: Counter(named first or "none")}; ``n`` and
         ``failed``.
@@ -101,6 +105,10 @@ def stats(rows):
         inj, nam = set(r["injected"]), set(r["named"])
         tp, fn, fp = tp + len(inj & nam), fn + len(inj - nam), fp + len(nam - inj)
     s["pairs_recall"], s["pairs_precision"] = (tp, tp + fn), (tp, tp + fp)
+    toned = [r for r in ok if "tones" in r]
+    s["hum_line"] = _count([r for r in toned if "hum" in r["injected"]],
+                           lambda r: any(abs(t["hz"] - HUM_HZ) <= 1.0 for t in r["tones"]))
+    s["line_without_hum"] = _count([r for r in toned if "hum" not in r["injected"]], lambda r: bool(r["tones"]))
     # pair magnitudes are drawn from 3 σ up: every pair is material
     mat = [r for r in singles + pairs if set(r["injected"]) <= _library(r)]
     gc = np.array([r["gap_closed"] for r in mat], dtype=float)
@@ -129,6 +137,8 @@ _METRICS = (
     ("form_on_fonbw", "form named on FONBW cores"),
     ("pairs_recall", "pairs: recall"),
     ("pairs_precision", "pairs: precision"),
+    ("hum_line", "hum: its 50-Hz line named in what is left"),
+    ("line_without_hum", "a line named where no hum was injected"),
 )
 
 

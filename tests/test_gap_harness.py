@@ -169,16 +169,20 @@ SYNTHETIC = [
     _row(5, "preisach", "below", {"drift": 0.2}, ["drift"], 0.1),
     _row(6, "pi", "pair", {"creep": 5.0, "drift": 8.0}, ["creep", "saturation"], 0.6),
     _row(7, "pi", "pair", {"delay": 4.0, "clip": 9.0}, ["delay"], 0.4),
-    _row(8, "rate", "single", {"clip": 6.0}, [], 0.0),
+    _row(8, "rate", "single", {"clip": 6.0}, [], 0.0, tones=[{"hz": 7.0, "share": 0.3}]),
     {"seed": 9, "family": "rate", "kind": "single", "injected": {"creep": {"magnitude": 4.0, "params": {}}},
      "error": "RuntimeError: boom"},
     _row(10, "rate", "single", {"creep": 1.0}, ["creep"], 0.3),
+    _row(11, "pi", "outside", {"hum": 20.0}, [], 0.1, tones=[{"hz": 50.0, "share": 0.6}]),
+    _row(12, "pi", "outside", {"hum": 5.0}, [], 0.0, tones=[{"hz": 150.0, "share": 0.2}]),
 ]
 
 
 def test_summary_per_family_on_hand_computed_rows(tmp_path):
     s = gs.stats(SYNTHETIC)
-    assert (s["n"], s["failed"]) == (10, 1)
+    assert (s["n"], s["failed"]) == (12, 1)
+    # the hum's line named on row 11, not on 12 (its third harmonic only); a line where none was (row 8)
+    assert s["hum_line"] == (1, 2) and s["line_without_hum"] == (1, 1)
     assert s["top1"] == (2, 4)                 # rows 1, 3 of 1, 2, 3, 8 (row 10 is 1 σ)
     assert s["top1_unabsorbed"] == (1, 1)      # row 1 (row 2 absorbed; 3, 8 not measured)
     assert s["top1_mid_drive"] == (1, 1)
@@ -192,7 +196,7 @@ def test_summary_per_family_on_hand_computed_rows(tmp_path):
     assert s["gap_closed_median"] == pytest.approx(0.7)
     assert s["gap_closed_p10"] == pytest.approx(0.53)
     assert s["confusion"] == {"creep": {"creep": 1}, "delay": {"amplifier": 1}, "dynamics": {"dynamics": 1},
-                              "clip": {"none": 1}}
+                              "clip": {"none": 1}, "hum": {"none": 2}}
     by = {f: gs.stats([r for r in SYNTHETIC if r["family"] == f]) for f in ("fonbw", "preisach", "pi", "rate")}
     assert by["fonbw"]["top1"] == (1, 2) and by["fonbw"]["form_on_fonbw"] == (1, 2)
     assert by["preisach"]["top1"] == (1, 1) and by["preisach"]["null_named"] == (1, 2)
