@@ -561,6 +561,18 @@ def test_form_with_no_effect_named_needs_a_noise_variance_and_a_lower_bic(drop_s
     assert not out["passed"] and out["drop_sigma2"] == pytest.approx(drop_s2, rel=1e-3)
 
 
+def test_form_with_no_effect_named_reuses_the_nominals_bootstrap(monkeypatch):
+    from fonbw.gap import checks
+    from fonbw.gap import form as fm
+
+    d = _alone_case(8.0)
+    drawn = checks.bootstrap(d.val_s, d.p0_va, d.pref_va, d.sigma2, d.seed)
+    d.form["bootstrap"] = drawn     # as check_form leaves it when the share was material
+    monkeypatch.setattr(checks, "bootstrap", lambda *a: pytest.fail("the bootstrap drawn again"))
+    out = fm.form_alone(d)
+    assert out["passed"] and out["bootstrap"] is drawn and drawn["p10"] > 0
+
+
 @pytest.mark.parametrize("case", ["reference loses", "at the floor", "form already material", "effect accepted"])
 def test_form_with_no_effect_named_asked_only_when_nothing_else_decides(monkeypatch, case):
     from fonbw.gap import form as fm

@@ -475,7 +475,10 @@ def form_alone(d):
     """
     drop = d.mse0 - d.mse_ref
     passed = bool(drop >= checks.LATE_DROP * d.sigma2 and d.form["delta_bic"] < 0)
-    boot = checks.bootstrap(d.val_s, d.p0_va, d.pref_va, d.sigma2, d.seed) if passed else None
+    boot = None
+    if passed:
+        # check_form drew the same bootstrap (the nominals, the same seed) when the share was material
+        boot = d.form.get("bootstrap") or checks.bootstrap(d.val_s, d.p0_va, d.pref_va, d.sigma2, d.seed)
     return {"passed": bool(passed and boot["p10"] > 0), "drop_sigma2": float(drop / d.sigma2), "bootstrap": boot}
 
 
