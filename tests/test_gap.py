@@ -842,6 +842,9 @@ def test_blind_stroke_limit_is_the_only_effect_named(stroke_limit):
     # to −159, and taken out of its refit each fitted as well: the refit of
     # the nominal and the stroke limit had closed it, not the block
     assert stroke_limit[1]["verdict"]["effects"] == ["saturation"]
+    # the steps record's three edges (40, 100, 60 V), which the core answers at once
+    edges = stroke_limit[1]["verdict"]["step_edges"]
+    assert edges["count"] == 3 and edges["dead_time_s"] is None
 
 
 def test_later_steps_say_why_no_second_effect_was_named(stroke_limit, tmp_path):
@@ -867,6 +870,7 @@ def test_later_steps_say_why_no_second_effect_was_named(stroke_limit, tmp_path):
     write_html(res, tmp_path / "r.html")
     page = (tmp_path / "r.html").read_text(encoding="utf-8")
     assert "On top of saturation" in page and "the block itself accounts for" in page
+    assert "3 step edges in the training records" in page
 
 
 def test_the_report_says_what_became_of_each_candidate():

@@ -172,3 +172,153 @@ def test_a_candidate_is_refused_for_its_own_lag_not_for_an_accepted_one(monkeypa
     assert checked(1, np.zeros(0))["passed"]
     lagged = checked(2, np.array([0.0]))
     assert not lagged["passed"] and "where the amplifier and delay let 2% through" in lagged["failed"]
+
+
+def _delayed(n, core=_viscous_core):
+    """The core behind a whole-sample transport delay of `n` samples."""
+    return lambda u: core(np.r_[np.full(n, u[0]), u[:-n]])
+
+
+def test_the_output_holds_still_for_a_delay_and_then_jumps_as_the_core_answers():
+    e = StepEdges(_records(_delayed(6)), DT, sigma=0.001)
+    assert e.onset == [6, 6, 6]
+    np.testing.assert_allclose(e.profile[:, :6], 0.0, atol=1e-12)
+    # from the delayed step on, the core's own step response over the rest of the window
+    a = math.exp(-DT / 0.01)
+    first = (0.4 + 0.6 * (1.0 - a)) / (0.4 + 0.6 * (1.0 - a ** (SETTLE - 6 + 1)))
+    np.testing.assert_allclose(e.profile[:, 6], first, rtol=1e-9)
+
+
+def test_a_slow_lag_cannot_make_the_jump_after_a_dead_time():
+    # behind a 6-sample delay the core jumps 41 % of its step in one sample;
+    # an amplifier at 16 Hz lets 4 % through in that sample and the one
+    # before, so it is refused although it passes the edge's own sample
+    # (the output has not moved there)
+    e = StepEdges(_records(_delayed(6)), DT, sigma=0.001)
+    amp, delay = Amplifier(DT, 100.0), Delay(DT)
+    th = np.array([15.9, 1e9])
+    b = math.exp(-2.0 * math.pi * 15.9 * DT)
+    let = (b ** 5 - b ** 7) / (1.0 - b ** (SETTLE + 1))
+    np.testing.assert_allclose(e.passed_profile([amp], [th])[:, 6] - e.passed_profile([amp], [th])[:, 4],
+                               let, rtol=1e-6)
+    reason = e.refuses([amp], [th])
+    assert reason.startswith("at 3 of the 3 step edges of the training records the output holds still for "
+                             "6 samples and then moves 41% of its step in one sample")
+    assert f"where the amplifier let {let:.0%} through" in reason and "a dead time" in reason
+    # the delay itself, or one a sample short (the core may answer a sample
+    # late), is kept; two samples short, the output holds still after the
+    # delay let the whole step through, and it is refused
+    assert e.refuses([delay], [np.array([6.0 * DT])]) is None
+    assert e.refuses([delay], [np.array([5.0 * DT])]) is None
+    assert "holds still for 6 samples" in e.refuses([delay], [np.array([4.0 * DT])])
+    # a delay that is too long is refused by the edge's own sample only when
+    # the output moves there; here it is refused where the output first moves
+    assert e.refuses([delay], [np.array([8.0 * DT])]) is not None
+
+
+def test_an_amplifier_behind_a_delay_is_kept_when_the_pair_is_judged():
+    # a 4-sample delay and then a 100-Hz amplifier: the output rises smoothly
+    # after the dead time, which the amplifier alone and the pair both allow
+    amp, delay = Amplifier(DT, 100.0), Delay(DT)
+    th_a, th_d = np.array([100.0, 1e9]), np.array([4.0 * DT])
+    e = StepEdges(_records(lambda u: 0.1 * amp.transform_input(delay.transform_input(u, DT, th_d), DT, th_a)),
+                  DT, sigma=0.001)
+    assert e.onset == [4, 4, 4]
+    assert e.refuses([amp, delay], [th_a, th_d]) is None
+    assert e.refuses([amp], [th_a]) is None
+    # when most edges answer at once there is no dead time to judge
+    e = StepEdges(_records(_viscous_core), DT, sigma=0.001)
+    assert e.onset == [0, 0, 0] and e.refuses([amp], [np.array([2000.0, 1e9])]) is None
+
+
+def test_the_delays_the_edges_allow_bracket_the_dead_time():
+    # 6 samples still, then the jump: a delay of 4 to 7 samples (the core may
+    # answer a sample late, and a small first share may show a sample later)
+    e = StepEdges(_records(_delayed(6)), DT, sigma=0.001)
+    np.testing.assert_allclose(e.dead_time(), (4.0 * DT, 7.0 * DT), rtol=1e-12)
+    # a fractional delay: 6.5 samples let half the step through in sample 6
+    delay = Delay(DT)
+    e = StepEdges(_records(lambda u: _viscous_core(delay.transform_input(u, DT, np.array([6.5 * DT])))), DT,
+                  sigma=0.001)
+    assert e.onset == [6, 6, 6]
+    lo, hi = e.dead_time()
+    assert lo <= 6.5 * DT <= hi
+    # no dead time: an output that answers at once, or rises smoothly from
+    # rest (a resonance at 60 Hz: 0.03 of its step a sample where it first moves)
+    assert StepEdges(_records(_viscous_core), DT, sigma=0.001).dead_time() is None
+    dyn = Dynamics(DT)
+    e = StepEdges(_records(lambda u: 0.1 * dyn.output_op(u, DT, np.array([60.0, 0.2]))), DT, sigma=0.001)
+    assert e.onset[0] > 0 and e.dead_time() is None
+
+
+def test_a_delay_block_is_searched_where_the_edges_allow():
+    delay = Delay(DT)
+    near = delay.within(4.0 * DT, 7.0 * DT)
+    assert near.bounds == [(4.0 * DT, 7.0 * DT)] and delay.bounds == [(0.0, 25.0 * DT)]
+    np.testing.assert_allclose(near.grid[:, 0] / DT, [4.0, 6.0, 7.0], rtol=1e-12)
+    # the block is otherwise the same: it delays as before
+    u = np.arange(10.0)
+    np.testing.assert_array_equal(near.transform_input(u, DT, [2.0 * DT]), delay.transform_input(u, DT, [2.0 * DT]))
+    # clipped to its own bounds, and never empty
+    assert delay.within(20.0 * DT, 40.0 * DT).bounds == [(20.0 * DT, 25.0 * DT)]
+    with pytest.raises(ValueError, match="no delay"):
+        delay.within(30.0 * DT, 40.0 * DT)
+
+
+def test_a_delay_the_edges_refuse_is_searched_again_within_their_dead_time():
+    # the first refit ends two samples short of a 6-sample dead time (the
+    # edges refuse it); the second searches only 4 to 7 samples and is kept
+    from fonbw.gap.greedy import GreedySteps
+
+    amp, delay = Amplifier(DT, 100.0), Delay(DT)
+    edges_ = StepEdges(_records(_delayed(6)), DT, sigma=0.001)
+    searched = []
+
+    def refit_candidate(active, start, att=None, lib=None):
+        block = (me.lib if lib is None else lib)[active[-1]]
+        searched.append(block.bounds[0])
+        if block is amp:
+            return {"th": [np.array([2000.0, 1e9])], "rms": 0.01}, None, 0.001
+        d = 4.0 * DT if lib is None else 6.0 * DT
+        return {"th": [np.array([d])], "rms": 0.01}, None, 0.001
+
+    def check_candidate(i, step, fit, pv, mse, eff):
+        return {"refused": edges_.refuses(eff, fit["th"]), "passed": True}
+
+    me = SimpleNamespace(lib=[amp, delay], edges=edges_, refit_candidate=refit_candidate,
+                         check_candidate=check_candidate)
+    cur = {"idx": [], "fit": None, "eff": []}
+    fit, _, _, out, block = GreedySteps.refit_and_check(me, 1, 0, cur)
+    np.testing.assert_allclose(searched, [(0.0, 25.0 * DT), (4.0 * DT, 7.0 * DT)], rtol=1e-12)
+    assert out["refused"] is None and fit["th"][0][0] == 6.0 * DT
+    np.testing.assert_allclose(out["searched_within_s"], (4.0 * DT, 7.0 * DT), rtol=1e-12)
+    assert block.bounds == [(4.0 * DT, 7.0 * DT)] and me.lib[1] is delay
+    # a block that cannot be narrowed is fitted once, refused or not (a fast
+    # amplifier lets the step through long before the output moves)
+    searched.clear()
+    fit, _, _, out, block = GreedySteps.refit_and_check(me, 0, 0, cur)
+    assert block is amp and len(searched) == 1 and "dead time" in out["refused"]
+
+
+def test_the_report_gives_the_edges_and_their_dead_time():
+    a = math.exp(-DT / 0.01)
+    first = (0.4 + 0.6 * (1.0 - a)) / (0.4 + 0.6 * (1.0 - a ** (SETTLE + 1)))
+    s = StepEdges(_records(_viscous_core), DT, sigma=0.001).summary()
+    assert s["count"] == 3 and s["dead_time_s"] is None
+    assert s["moved"] == pytest.approx(first, rel=1e-9)
+    s = StepEdges(_records(_delayed(6)), DT, sigma=0.001).summary()
+    assert s["moved"] == pytest.approx(0.0, abs=1e-12)
+    np.testing.assert_allclose(s["dead_time_s"], [4.0 * DT, 7.0 * DT], rtol=1e-12)
+    assert StepEdges(_records(_viscous_core), DT, sigma=1.0).summary() == {"count": 0, "moved": None,
+                                                                             "dead_time_s": None}
+
+
+def test_the_edges_in_words():
+    from fonbw.gap.edges import summary_text
+
+    s = StepEdges(_records(_delayed(6)), DT, sigma=0.001).summary()
+    assert summary_text(s) == ("3 step edges in the training records; the output moves 0% of its step within "
+                               "the step's own sample, and after most edges it holds still and then jumps: a "
+                               "dead time, which a delay of 0.80-1.40 ms explains")
+    assert summary_text(StepEdges(_records(_viscous_core), DT, sigma=1.0).summary()).startswith("no clear step")
+    assert summary_text(None).startswith("no clear step")

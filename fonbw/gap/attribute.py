@@ -512,7 +512,8 @@ class Diagnosis(GreedySteps):
             form=self.form, start=self.rs.report(),
             remaining=checks.remaining(self.val_s, self.current["pred"], self.sigma2, self.coverage),
             at_bounds=at_bounds, later_steps=self.later_steps,
-            tones=tones(self.val_s, self.current["pred"], self.dt, self.sigma2))
+            tones=tones(self.val_s, self.current["pred"], self.dt, self.sigma2),
+            step_edges=self.edges.summary())
         self.timing["total_s"] = time.perf_counter() - self.t_start
         given = self.model_given
         nominal = {

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["StepEdges", "RATIO", "MARGIN"]
+__all__ = ["StepEdges", "RATIO", "MARGIN", "summary_text"]
 
 #: How many times the share a lag block passes within the step's sample the
 #: output may move, plus :data:`MARGIN`, before the block is refused. A
@@ -44,6 +44,24 @@ HOLD_TOL = 0.02
 #: Least settled output change of an edge, in noise standard deviations, so
 #: that the share moved in one sample is known to a few hundredths.
 MIN_SNR = 50.0
+#: Samples after an edge searched for the output's first move: the delay
+#: block's longest delay (25 samples) and a few more.
+WINDOW = 30
+#: The output holds still while it stays within this share of its step, or
+#: within four noise σ of it when that is more.
+STILL = 0.05
+#: Least share of its step the output moves from the sample before its
+#: first move to :data:`LATE` samples after it for the stillness before to
+#: count as a dead time. A resonance or a slow amplifier starts smoothly: on
+#: the blind harness's cores with a 60-Hz resonance the output moved 0.02-0.04
+#: of its step per sample where it first moved, behind a delay 0.18-0.99.
+DEAD_JUMP = 0.1
+#: Samples the hysteresis may answer its input late. FONBW's fractional
+#: derivative answers the first sample of a step with a spike against it,
+#: which cancels most of the first response: behind a 3.7-sample delay a
+#: FONBW core of the blind harness (seed 35027) moved −0.04 of its step in
+#: the sample the delayed step arrived, 0.25 in the next.
+LATE = 1
 
 
 def _samples(seconds, dt):
@@ -70,9 +88,23 @@ def find(u, dt):
     return out
 
 
-def _share(x, k0, settle):
-    """Share of its change over `settle` samples that `x` makes in sample k0."""
-    return (x[k0] - x[k0 - 1]) / (x[k0 + settle] - x[k0 - 1])
+def _share(x, k, k0, settle):
+    """Share of its change over `settle` samples from the edge k0 that `x` has
+    made by sample(s) k."""
+    return (x[k] - x[k0 - 1]) / (x[k0 + settle] - x[k0 - 1])
+
+
+def summary_text(summary):
+    """:meth:`StepEdges.summary` in words (the report's)."""
+    if not summary or not summary.get("count"):
+        return "no clear step edges in the training records: they say nothing about lags"
+    text = (f"{summary['count']} step edges in the training records; the output moves {summary['moved']:.0%} "
+            f"of its step within the step's own sample")
+    dead = summary.get("dead_time_s")
+    if dead:
+        text += (f", and after most edges it holds still and then jumps: a dead time, which a delay of "
+                 f"{1e3 * dead[0]:.2f}-{1e3 * dead[1]:.2f} ms explains")
+    return text
 
 
 class StepEdges:
@@ -95,20 +127,35 @@ class StepEdges:
     moved : ndarray
         Share of each edge's settled change [-] the output makes in the
         edge's own sample.
+    profile : ndarray
+        (edges, window + 1): share of each edge's settled change the output
+        has made by each sample from the edge's own on.
+    onset : list of int or None
+        Per edge, the first sample (0: the edge's own) at which the output
+        leaves its level before the step by more than it holds still within
+        (:data:`STILL`); None when it does not within the window.
     """
 
     def __init__(self, records, dt, sigma):
         self.records, self.dt = records, float(dt)
         self.settle = _samples(SETTLE_S, dt)
-        self.edges, moved = [], []
+        self.window = min(WINDOW, self.settle)
+        self.edges, profile, self.onset = [], [], []
+        j = np.arange(self.window + 1)
         for i, r in enumerate(records):
             y = np.asarray(r.y, dtype=float)
             for k0 in find(r.u, dt):
+                step = y[k0 + self.settle] - y[k0 - 1]
                 # an output that does not move (noise-free records: σ = 0) tells nothing
-                if abs(y[k0 + self.settle] - y[k0 - 1]) > max(MIN_SNR * sigma, 0.0):
+                if abs(step) > max(MIN_SNR * sigma, 0.0):
                     self.edges.append((i, k0))
-                    moved.append(_share(y, k0, self.settle))
-        self.moved = np.asarray(moved)
+                    m = _share(y, k0 + j, k0, self.settle)
+                    profile.append(m)
+                    still = max(STILL, 4.0 * sigma / abs(step))
+                    out = np.nonzero(np.abs(m) > still)[0]
+                    self.onset.append(int(out[0]) if out.size else None)
+        self.profile = np.asarray(profile).reshape(len(self.edges), self.window + 1)
+        self.moved = self.profile[:, 0].copy()
 
     def __len__(self):
         return len(self.edges)
@@ -119,32 +166,86 @@ class StepEdges:
         input-side ones run on the record's command in turn, then the output
         operators on what they give (all have unit gain at rest). None when no
         block is a lag."""
+        prof = self.passed_profile(blocks, ths)
+        return None if prof is None else prof[:, 0]
+
+    def passed_profile(self, blocks, ths):
+        """As :meth:`passed`, by each sample of the window (like :attr:`profile`)."""
         lags = [(b, th) for b, th in zip(blocks, ths) if b.lag]
         if not lags:
             return None
         # input side first: that is where the model runs them
         lags.sort(key=lambda bt: not bt[0].input_side)
         out, by_rec = [], {}
+        j = np.arange(self.window + 1)
         for i, k0 in self.edges:
             if i not in by_rec:
                 v = np.asarray(self.records[i].u, dtype=float)
                 for b, th in lags:
                     v = b.transform_input(v, self.dt, th) if b.input_side else b.output_op(v, self.dt, th)
                 by_rec[i] = v
-            out.append(_share(by_rec[i], k0, self.settle))
-        return np.asarray(out)
+            out.append(_share(by_rec[i], k0 + j, k0, self.settle))
+        return np.asarray(out).reshape(len(self.edges), self.window + 1)
 
     def refuses(self, blocks, ths):
         """Why the lags among `blocks` at `ths` together contradict the edges,
         in words, or None (no edges, no lag, or the output moves no faster than
-        the lags allow)."""
-        passed = self.passed(blocks, ths) if len(self) else None
-        if passed is None:
-            return None
-        moved, passed = float(np.median(self.moved)), float(np.median(passed))
-        if moved <= RATIO * passed + MARGIN:
+        the lags allow, in the edge's own sample and where it first moves)."""
+        prof = self.passed_profile(blocks, ths) if len(self) else None
+        if prof is None:
             return None
         names = " and ".join(b.name for b in blocks if b.lag)
-        return (f"at the {len(self)} step edges of the training records the output moves {moved:.0%} "
-                f"of its step within the step's sample, where the {names} let {passed:.0%} through: "
-                f"the lag is the hysteresis's own rate dependence")
+        moved, passed = float(np.median(self.moved)), float(np.median(prof[:, 0]))
+        if moved > RATIO * passed + MARGIN:
+            return (f"at the {len(self)} step edges of the training records the output moves {moved:.0%} "
+                    f"of its step within the step's sample, where the {names} let {passed:.0%} through: "
+                    f"the lag is the hysteresis's own rate dependence")
+        return self._after_dead_time(prof, names)
+
+    def _held(self):
+        """(edge, onset) of the edges after which the output holds still before
+        it moves, when they are most of them; else an empty list."""
+        held = [(e, j) for e, j in enumerate(self.onset) if j is not None and j > 0]
+        return held if 2 * len(held) > len(self) else []
+
+    def dead_time(self):
+        """(shortest, longest) transport delay [s] the edges allow when the output
+        holds still after most of them and then jumps (:data:`DEAD_JUMP`), or
+        None. A delay of d samples lets its first share through in sample
+        floor(d), and the output may answer up to :data:`LATE` samples later
+        and show the first share only in the next sample when it is small."""
+        held = self._held()
+        if not held:
+            return None
+        jumps = [self.profile[e, min(j + LATE, self.window)] - self.profile[e, j - 1] for e, j in held]
+        if float(np.median(jumps)) < DEAD_JUMP:
+            return None
+        first = [j for _, j in held]
+        return max(0, min(first) - 1 - LATE) * self.dt, (max(first) + 1) * self.dt
+
+    def summary(self):
+        """The edges for a report: ``count``; ``moved`` (median share of its
+        step the output makes in the edge's own sample) and ``dead_time_s``
+        ([shortest, longest] delay the edges allow, :meth:`dead_time`), None
+        without edges or without a dead time."""
+        dead = self.dead_time() if len(self) else None
+        return {"count": len(self), "moved": float(np.median(self.moved)) if len(self) else None,
+                "dead_time_s": None if dead is None else [float(dead[0]), float(dead[1])]}
+
+    def _after_dead_time(self, prof, names):
+        """The same test where the output first moves, when it holds still
+        after most edges (a dead time): what it moves in that one sample
+        against what the lags let through in it and the :data:`LATE` samples
+        before, edge by edge."""
+        held = self._held()
+        if not held:
+            return None
+        jump = np.array([self.profile[e, j] - self.profile[e, j - 1] for e, j in held])
+        let = np.array([prof[e, j] - (prof[e, j - 1 - LATE] if j > LATE else 0.0) for e, j in held])
+        if float(np.median(jump - RATIO * let)) <= MARGIN:
+            return None
+        still = int(np.median([j for _, j in held]))
+        return (f"at {len(held)} of the {len(self)} step edges of the training records the output holds "
+                f"still for {still} samples and then moves {float(np.median(jump)):.0%} of its step in one "
+                f"sample, where the {names} let {float(np.median(let)):.0%} through: the records hold a "
+                f"dead time that the {names} cannot make")

@@ -307,6 +307,20 @@ class Delay(Effect):
     def transform_input(self, u, dt, th):
         return self.shift(u, float(th[0]) / dt)
 
+    def within(self, lo, hi):
+        """This block searched only over delays from `lo` to `hi` [s] (within its
+        bounds): the grid points there and both ends."""
+        b_lo, b_hi = self.bounds[0]
+        lo, hi = max(float(lo), b_lo), min(float(hi), b_hi)
+        if not lo < hi:
+            raise ValueError(f"delay: no delay from {lo} s to {hi} s within {b_lo}-{b_hi} s")
+        out = Delay.__new__(Delay)
+        out.__dict__.update(self.__dict__)
+        d = self.grid[:, 0]
+        out.bounds = [(lo, hi)]
+        out.grid = np.unique(np.r_[lo, d[(d > lo) & (d < hi)], hi])[:, None]
+        return out
+
 
 @nb.njit(cache=True)
 def _amp_kernel(u, a, smax, out):  # pragma: no cover - compiled

@@ -26,10 +26,11 @@ __all__ = ["GreedySteps"]
 class GreedySteps:
     """Attribution steps of :class:`fonbw.gap.attribute.Diagnosis` (a base class it inherits)."""
 
-    def refit_candidate(self, active, start, att=None):
+    def refit_candidate(self, active, start, att=None, lib=None):
         """Refit the `active` library effects (the last is new) jointly with the
         nominal model, from the configuration `start`, in the attribution
-        context `att` (default: the current one).
+        context `att` (default: the current one), the blocks taken from `lib`
+        (default: the diagnosis's library).
 
         On the FONBW nominal a block is searched from its ``search_seeds``
         seeds (:class:`fonbw.gap.effects.Effect`) and the best full-rate
@@ -37,7 +38,7 @@ class GreedySteps:
         validation MSE [µm²]).
         """
         a = self.att if att is None else att
-        eff = [self.lib[i] for i in active]
+        eff = [(self.lib if lib is None else lib)[i] for i in active]
         # on the reference only the block's own parameters are searched: four
         # seeds gave one fit for the amplifier on a Preisach core (seed 24023)
         n = eff[-1].search_seeds if a["core"] == "fonbw" else 1
@@ -138,8 +139,7 @@ class GreedySteps:
         cur = self.current
 
         def one(i):
-            fit, pv, mse = self.refit_candidate(cur["idx"] + [i], cur["fit"])
-            return fit, pv, mse, self.check_candidate(i, step, fit, pv, mse, cur["eff"] + [self.lib[i]])
+            return self.refit_and_check(i, step, cur)
 
         def said(j, r):
             gc = r[3]["gap_closed_step"] if r[3]["gap_closed_step"] is not None else -math.inf
@@ -155,8 +155,31 @@ class GreedySteps:
         items = [pool[j] for j in order]
         done = self.map(one, items, on_result=lambda k, r: said(order[k], r))
         by_i = dict(zip(items, done))
-        return [{"i": i, "fit": by_i[i][0], "pv": by_i[i][1], "mse": by_i[i][2], "eff": cur["eff"] + [self.lib[i]],
+        return [{"i": i, "fit": by_i[i][0], "pv": by_i[i][1], "mse": by_i[i][2], "eff": cur["eff"] + [by_i[i][4]],
                  "checks": by_i[i][3]} for i in pool]
+
+    def refit_and_check(self, i, step, cur):
+        """Refit library effect `i` on top of the configuration `cur` and check it
+        (:meth:`refit_candidate`, :meth:`check_candidate`). A block that can be
+        searched where the training records' step edges allow (a delay, within
+        their dead time: :meth:`fonbw.gap.edges.StepEdges.dead_time`) and that
+        they refuse as fitted is refitted once more there; its checks then hold
+        that range (``searched_within_s``). Returns (fit, validation
+        predictions, validation MSE, checks, the block as fitted)."""
+        block = self.lib[i]
+        fit, pv, mse = self.refit_candidate(cur["idx"] + [i], cur["fit"])
+        out = self.check_candidate(i, step, fit, pv, mse, cur["eff"] + [block])
+        dead = self.edges.dead_time()
+        if out["refused"] is None or dead is None or not hasattr(block, "within"):
+            return fit, pv, mse, out, block
+        # on rate-dependent cores the refit alone ends short of the dead time:
+        # the reference's own lag takes up the rest on the training records
+        lib = list(self.lib)
+        lib[i] = block = block.within(*dead)
+        fit, pv, mse = self.refit_candidate(cur["idx"] + [i], cur["fit"], lib=lib)
+        out = self.check_candidate(i, step, fit, pv, mse, cur["eff"] + [block])
+        out["searched_within_s"] = list(block.bounds[0])
+        return fit, pv, mse, out, block
 
     def _entries(self, results):
         """One JSON-able entry per candidate of a greedy step (``gap_closed``:
@@ -211,6 +234,8 @@ class GreedySteps:
             best = selection.pick_best(results, self.tie_margin)
             if best is None:
                 break
+            # a block searched again within the edges' range stays there
+            lib[best["i"]] = best["eff"][-1]
             name = lib[best["i"]].name
             if step > 0:
                 self.later_steps[-1]["accepted"] = name

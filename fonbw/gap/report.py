@@ -20,6 +20,7 @@ import math
 
 from ..io import atomic_open
 from .checks import flag_text
+from .edges import summary_text
 from .selection import form_text, outcome_text
 
 __all__ = ["write_json", "write_html"]
@@ -194,6 +195,7 @@ noise floor σ = {nom['noise_floor']:.4g} µm.</p>
 <h2>Waterfall</h2><img src="{figs['waterfall']}" alt="waterfall">
 <table><tr><th>step</th><th>val. RMS [µm]</th><th>gap closed (cumulative)</th></tr>{wf}</table>
 <h2>Record starts</h2><p>{esc(st.get('message', ''))}</p>
+<h2>Step edges</h2><p>{esc(summary_text(v.get('step_edges')))}.</p>
 <h2>Where the gap left lies</h2>
 <table><tr><th>validation record</th><th>share of the gap left [%]</th><th>RMS [µm]</th>
 <th>beyond the training records</th></tr>{left}</table>

@@ -84,7 +84,8 @@ def retry_pool(pool, chosen, results, first_step):
 
 
 def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
-            form=None, start=None, remaining=None, at_bounds=None, later_steps=None, tones=None):
+            form=None, start=None, remaining=None, at_bounds=None, later_steps=None, tones=None,
+            step_edges=None):
     """The verdict of a diagnosis.
 
     Parameters
@@ -124,6 +125,9 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
     tones : list of dict, optional
         Narrow lines in what the final model leaves that its own output lacks
         (:func:`fonbw.gap.localize.tones`: ``hz``, ``share``).
+    step_edges : dict, optional
+        What the training records' step edges show
+        (:meth:`fonbw.gap.edges.StepEdges.summary`), reported as it is.
 
     Returns
     -------
@@ -131,7 +135,7 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         ``effects``, ``gap_closed`` (by form and effects together),
         ``unexplained``, ``at_noise_floor``, ``steps``, ``waterfall``,
         ``form``, ``start``, ``coverage``, ``remaining``, ``params``,
-        ``later_steps``, ``tones``, ``message``.
+        ``later_steps``, ``tones``, ``step_edges``, ``message``.
     """
     total = (mse0 - mse) / excess0 if excess0 > 0 and not at_floor else 0.0
     # the waterfall counts from the nominal's RMS as it reports it, so that the
@@ -164,6 +168,7 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         "params": params,
         "later_steps": list(later_steps or []),
         "tones": list(tones or []),
+        "step_edges": step_edges,
     }
     named = (["the hysteresis form"] if form_named else []) + out["effects"]
     if at_floor:
