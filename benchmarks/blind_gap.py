@@ -173,6 +173,7 @@ def _verdict(res):
             "candidates": [{k: c.get(k) for k in ("effect", "gap_closed", "accepted", "checks", "params")}
                            for c in d.get("candidates", [])],
             "later_steps": v.get("later_steps", []), "tones": v.get("tones", []),
+            "step_edges": v.get("step_edges"),
             "effect_params": v.get("params"), "remaining": v.get("remaining"), "at_bounds": nom.get("at_bounds")}
 
 
