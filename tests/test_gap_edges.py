@@ -204,7 +204,7 @@ def test_a_slow_lag_cannot_make_the_jump_after_a_dead_time():
     reason = e.refuses([amp], [th])
     assert reason.startswith("at 3 of the 3 step edges of the training records the output holds still for "
                              "6 samples and then moves 41% of its step in one sample")
-    assert f"where the amplifier let {let:.0%} through" in reason and "a dead time" in reason
+    assert f"where the amplifier let {let:.0%} through" in reason and "dead time" in reason
     # the delay itself, or one a sample short (the core may answer a sample
     # late), is kept; two samples short, the output holds still after the
     # delay let the whole step through, and it is refused
@@ -261,8 +261,7 @@ def test_a_delay_block_is_searched_where_the_edges_allow():
     np.testing.assert_array_equal(near.transform_input(u, DT, [2.0 * DT]), delay.transform_input(u, DT, [2.0 * DT]))
     # clipped to its own bounds, and never empty
     assert delay.within(20.0 * DT, 40.0 * DT).bounds == [(20.0 * DT, 25.0 * DT)]
-    with pytest.raises(ValueError, match="no delay"):
-        delay.within(30.0 * DT, 40.0 * DT)
+    assert delay.within(26.0 * DT, 29.0 * DT) is None
 
 
 def test_a_delay_the_edges_refuse_is_searched_again_within_their_dead_time():
@@ -298,6 +297,13 @@ def test_a_delay_the_edges_refuse_is_searched_again_within_their_dead_time():
     searched.clear()
     fit, _, _, out, block = GreedySteps.refit_and_check(me, 0, 0, cur)
     assert block is amp and len(searched) == 1 and "dead time" in out["refused"]
+    # a dead time longer than the longest delay the block has: fitted once, not
+    # searched in an empty range
+    searched.clear()
+    me.edges = StepEdges(_records(_delayed(28)), DT, sigma=0.001)
+    assert me.edges.dead_time()[0] > 25.0 * DT
+    fit, _, _, out, block = GreedySteps.refit_and_check(me, 1, 0, cur)
+    assert block is delay and len(searched) == 1 and out["refused"] is not None
 
 
 def test_the_report_gives_the_edges_and_their_dead_time():

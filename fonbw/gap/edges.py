@@ -220,7 +220,8 @@ class StepEdges:
         jumps = [self.profile[e, min(j + LATE, self.window)] - self.profile[e, j - 1] for e, j in held]
         if float(np.median(jumps)) < DEAD_JUMP:
             return None
-        first = [j for _, j in held]
+        # the edges that jump bracket it: one that rises smoothly would widen it to nothing
+        first = [j for (_, j), jump in zip(held, jumps) if jump >= DEAD_JUMP]
         return max(0, min(first) - 1 - LATE) * self.dt, (max(first) + 1) * self.dt
 
     def summary(self):
@@ -246,6 +247,6 @@ class StepEdges:
             return None
         still = int(np.median([j for _, j in held]))
         return (f"at {len(held)} of the {len(self)} step edges of the training records the output holds "
-                f"still for {still} samples and then moves {float(np.median(jump)):.0%} of its step in one "
-                f"sample, where the {names} let {float(np.median(let)):.0%} through: the records hold a "
-                f"dead time that the {names} cannot make")
+                f"still for {still} sample{'s' if still != 1 else ''} and then moves "
+                f"{float(np.median(jump)):.0%} of its step in one sample, where the {names} let "
+                f"{float(np.median(let)):.0%} through: they do not match the dead time the records hold")

@@ -309,11 +309,12 @@ class Delay(Effect):
 
     def within(self, lo, hi):
         """This block searched only over delays from `lo` to `hi` [s] (within its
-        bounds): the grid points there and both ends."""
+        bounds): the grid points there and both ends; None when its bounds hold
+        no such delay (a dead time longer than its longest delay)."""
         b_lo, b_hi = self.bounds[0]
         lo, hi = max(float(lo), b_lo), min(float(hi), b_hi)
         if not lo < hi:
-            raise ValueError(f"delay: no delay from {lo} s to {hi} s within {b_lo}-{b_hi} s")
+            return None
         out = Delay.__new__(Delay)
         out.__dict__.update(self.__dict__)
         d = self.grid[:, 0]

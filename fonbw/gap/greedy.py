@@ -170,12 +170,14 @@ class GreedySteps:
         fit, pv, mse = self.refit_candidate(cur["idx"] + [i], cur["fit"])
         out = self.check_candidate(i, step, fit, pv, mse, cur["eff"] + [block])
         dead = self.edges.dead_time()
-        if out["refused"] is None or dead is None or not hasattr(block, "within"):
+        narrowed = (block.within(*dead) if out["refused"] is not None and dead is not None
+                    and hasattr(block, "within") else None)
+        if narrowed is None:
             return fit, pv, mse, out, block
         # on rate-dependent cores the refit alone ends short of the dead time:
         # the reference's own lag takes up the rest on the training records
         lib = list(self.lib)
-        lib[i] = block = block.within(*dead)
+        lib[i] = block = narrowed
         fit, pv, mse = self.refit_candidate(cur["idx"] + [i], cur["fit"], lib=lib)
         out = self.check_candidate(i, step, fit, pv, mse, cur["eff"] + [block])
         out["searched_within_s"] = list(block.bounds[0])
