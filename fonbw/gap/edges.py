@@ -229,7 +229,7 @@ class StepEdges:
         step the output makes in the edge's own sample) and ``dead_time_s``
         ([shortest, longest] delay the edges allow, :meth:`dead_time`), None
         without edges or without a dead time."""
-        dead = self.dead_time() if len(self) else None
+        dead = self.dead_time()
         return {"count": len(self), "moved": float(np.median(self.moved)) if len(self) else None,
                 "dead_time_s": None if dead is None else [float(dead[0]), float(dead[1])]}
 

@@ -26,6 +26,7 @@ are solved. Units: u [V], y [µm], t [s], frequencies [Hz].
 """
 from __future__ import annotations
 
+import copy
 import functools
 import math
 
@@ -315,8 +316,7 @@ class Delay(Effect):
         lo, hi = max(float(lo), b_lo), min(float(hi), b_hi)
         if not lo < hi:
             return None
-        out = Delay.__new__(Delay)
-        out.__dict__.update(self.__dict__)
+        out = copy.copy(self)
         d = self.grid[:, 0]
         out.bounds = [(lo, hi)]
         out.grid = np.unique(np.r_[lo, d[(d > lo) & (d < hi)], hi])[:, None]

@@ -169,9 +169,8 @@ class GreedySteps:
         block = self.lib[i]
         fit, pv, mse = self.refit_candidate(cur["idx"] + [i], cur["fit"])
         out = self.check_candidate(i, step, fit, pv, mse, cur["eff"] + [block])
-        dead = self.edges.dead_time()
-        narrowed = (block.within(*dead) if out["refused"] is not None and dead is not None
-                    and hasattr(block, "within") else None)
+        dead = self.edges.dead_time() if out["refused"] is not None and hasattr(block, "within") else None
+        narrowed = None if dead is None else block.within(*dead)
         if narrowed is None:
             return fit, pv, mse, out, block
         # on rate-dependent cores the refit alone ends short of the dead time:
