@@ -212,7 +212,8 @@ def run_scenario(seed, budget, options=None):
     row = {"seed": seed, "family": family, "core": {"name": core.name, "params": sc["core_params"]},
            "kind": sc["kind"], "noise_std": sc["noise_std"], "scale": opt["scale"],
            "starts_at_rest": sc["starts_at_rest"], "mid_drive": sc["mid_drive"],
-           "injected": {k: {"magnitude": v["magnitude"], "params": v["params"]} for k, v in sc["injected"].items()}}
+           "injected": {k: {"magnitude": v["magnitude"], "magnitude_train": v["magnitude_train"],
+                            "params": v["params"]} for k, v in sc["injected"].items()}}
     diagnose = opt["diagnose"]
     if diagnose is None:
         from fonbw.gap import diagnose

@@ -23,13 +23,17 @@ import numpy as np
 
 from gap_effects_truth import HUM_HZ
 
-__all__ = ["MATERIAL", "UNABSORBED", "FORM_ABSENT", "LIBRARY", "load", "stats", "summary"]
+__all__ = ["MATERIAL", "UNABSORBED", "FORM_ABSENT", "SEEN_IN_TRAINING", "LIBRARY", "load", "stats", "summary"]
 
 MATERIAL = 2.0
 # an unabsorbed gap of 0.5 σ is a validation MSE of 1.25 σ², just above the
 # diagnosis' noise-floor tolerance (1.2 σ²): below it nothing can be named
 UNABSORBED = 0.5
 FORM_ABSENT = 0.5
+# an effect that changes the training records by less than this [σ RMS] left
+# the fits nothing to learn from (a knee or rail above the training range):
+# the same bound as an unabsorbed gap's
+SEEN_IN_TRAINING = 0.5
 LIBRARY = ("creep", "dynamics", "amplifier", "delay", "drift", "saturation")
 EFFECT_ORDER = ("creep", "dynamics", "amplifier", "delay", "drift", "saturation", "clip", "hum")
 
@@ -51,6 +55,11 @@ def _form_named(r):
 def _library(r):
     names = [c.get("effect") for c in r.get("candidates") or []]
     return set(names) if names else set(LIBRARY)
+
+
+def _seen(r):
+    """The effect's magnitude on the training records [σ], or None (rows from before it was kept)."""
+    return list(r["injected"].values())[0].get("magnitude_train")
 
 
 def _left(r):
@@ -77,6 +86,9 @@ def stats(rows):
         ``(hits, of)`` pairs: ``top1`` (material single effects named first),
         ``top1_unabsorbed`` (of these, where the effect is not absorbed by a
         FONBW), ``top1_mid_drive`` (of these, a record not at rest),
+        ``top1_seen`` and ``top1_unseen`` (of these, the effect's magnitude on
+        the training records at least or below :data:`SEEN_IN_TRAINING`; rows
+        without ``magnitude_train`` in neither),
         ``null_named`` (null cases naming an effect), ``form_material_named``,
         ``form_absent_named``, ``form_on_fonbw`` (form named on FONBW cores),
         ``pairs_recall``, ``pairs_precision``, ``hum_line`` (hum cases whose
@@ -92,7 +104,10 @@ def stats(rows):
     una = [r for r in singles if (_left(r) or 0.0) >= UNABSORBED]
     s = {"n": len(rows), "failed": len(rows) - len(ok), "top1": _count(singles, first),
          "top1_unabsorbed": _count(una, first),
-         "top1_mid_drive": _count([r for r in singles if not r.get("starts_at_rest", True)], first)}
+         "top1_mid_drive": _count([r for r in singles if not r.get("starts_at_rest", True)], first),
+         "top1_seen": _count([r for r in singles if (_seen(r) or 0.0) >= SEEN_IN_TRAINING], first),
+         "top1_unseen": _count([r for r in singles if _seen(r) is not None and _seen(r) < SEEN_IN_TRAINING],
+                               first)}
     nulls = [r for r in ok if r["kind"] == "null"] + below
     s["null_named"] = _count(nulls, lambda r: bool(r["named"]))
     fx = [r for r in ok if r.get("form_excess_sigma") is not None]
@@ -131,6 +146,8 @@ _METRICS = (
     ("top1", "top-1 on material single effects (≥ 2 σ)"),
     ("top1_unabsorbed", "  of these, effect left by the best FONBW (≥ 0.5 σ)"),
     ("top1_mid_drive", "  of these, a record not starting at rest"),
+    ("top1_seen", "  of these, seen in the training records (≥ 0.5 σ there)"),
+    ("top1_unseen", "  of these, not seen in the training records (< 0.5 σ there)"),
     ("null_named", "null cases (null, single < 0.5 σ) naming an effect"),
     ("form_material_named", "form named when material (oracle ≥ 2 σ)"),
     ("form_absent_named", "form named when absent (oracle < 0.5 σ)"),

@@ -15,6 +15,7 @@ import gap_cores as gc
 import gap_effects_truth as ge
 import gap_summary as gs
 import gap_truth as tr
+import train_magnitudes as tm
 
 SCALE = 0.25
 
@@ -120,6 +121,18 @@ def test_mid_drive_record_is_the_tail_of_the_full_drive():
     assert np.max(np.abs(rec.y - clean)) < 6 * truth.noise_std + 80.0 / 2 ** 16
 
 
+def test_a_rail_above_the_training_drives_is_not_seen_in_training():
+    # training stops at 114.8 V, the validation sines reach 120 V: a rail at
+    # 118 V with a 0.2-V knee lets 0.2 ln(1 + e^(-16)) ≈ 2e-8 V through there
+    sc = tr.draw_scenario(3, "null", scale=SCALE, family="pi")
+    tr_max = max(float(np.max(u)) for _, u, _ in sc["train_drives"])
+    va_max = max(float(np.max(u)) for _, u, _ in sc["validate_drives"])
+    assert tr_max == pytest.approx(114.77, abs=0.01) and va_max == pytest.approx(120.0)
+    rail = {"hi": 118.0, "lo": -30.0, "knee": 0.2}
+    assert tr.magnitude(sc["truth"], sc["train_drives"], "clip", rail) < 1e-4
+    assert tr.magnitude(sc["truth"], sc["validate_drives"], "clip", rail) > 1.0
+
+
 def _stub_diagnose(train, validate, seed=0, budget=0, **kw):
     # the JSON of a diagnosis that does not report the form yet
     return {"verdict": {"effects": ["creep"], "gap_closed": 0.5, "unexplained": False, "at_noise_floor": False},
@@ -140,6 +153,16 @@ def test_run_scenario_row_and_oracle_cache():
     assert row["family"] == "pi" and row["kind"] == "single" and row["starts_at_rest"] is False
     assert row["core"]["params"] == sc["core_params"] and row["mid_drive"] == sc["mid_drive"]
     assert row["injected"].keys() == sc["injected"].keys()
+    # the training magnitudes travel with the row, and the script that fills
+    # them into older rows draws the same ones again
+    (name, inj), = row["injected"].items()
+    assert inj["magnitude_train"] == sc["injected"][name]["magnitude_train"] > 0
+    old = json.loads(json.dumps(row))
+    del old["injected"][name]["magnitude_train"]
+    assert tm.fill(old, 1.0)["injected"][name]["magnitude_train"] == inj["magnitude_train"]
+    del old["injected"][name]["magnitude_train"]
+    with pytest.raises(SystemExit, match="not the scenario of this row"):
+        tm.fill(old, 0.0)   # drawn at rest: another scenario
     assert row["named"] == ["creep"] and row["form"] is None
     # each candidate's fitted parameters are kept (reading a miss needs no rerun)
     assert [c["params"]["p"] for c in row["candidates"]] == list(range(len(gs.LIBRARY)))
@@ -147,29 +170,31 @@ def test_run_scenario_row_and_oracle_cache():
     assert row["unabsorbed_effect"] == pytest.approx((3.0 ** 2 - 2.4 ** 2) ** 0.5)
 
 
-def _row(seed, family, kind, injected, named, gap=0.5, form=None, **extra):
+def _row(seed, family, kind, injected, named, gap=0.5, form=None, seen=None, **extra):
     r = {"seed": seed, "family": family, "kind": kind, "starts_at_rest": True,
          "injected": {k: {"magnitude": m, "params": {}} for k, m in injected.items()},
          "named": named, "gap_closed": gap, "unexplained": False, "at_floor": False, "wall_s": 1.0,
          "candidates": [{"effect": e} for e in gs.LIBRARY]}
     if form is not None:
         r["form"] = {"material": form, "gap_closed": 0.3, "where": "branch"}
+    for k, m in (seen or {}).items():
+        r["injected"][k]["magnitude_train"] = m
     r.update(extra)
     return r
 
 
 SYNTHETIC = [
     _row(1, "fonbw", "single", {"creep": 5.0}, ["creep"], 0.9, form_excess_sigma=0.2, unabsorbed=3.0,
-         unabsorbed_effect=2.9),
+         unabsorbed_effect=2.9, seen={"creep": 7.0}),
     _row(2, "fonbw", "single", {"delay": 3.0}, ["amplifier", "delay"], 0.5, form=True, form_excess_sigma=0.3,
-         unabsorbed=0.3),
+         unabsorbed=0.3, seen={"delay": 0.4}),
     _row(3, "preisach", "single", {"dynamics": 10.0}, ["dynamics"], 0.8, form=True, form_excess_sigma=4.0,
          starts_at_rest=False),
     _row(4, "preisach", "null", {}, [], 0.0, form=False, form_excess_sigma=3.0),
     _row(5, "preisach", "below", {"drift": 0.2}, ["drift"], 0.1),
     _row(6, "pi", "pair", {"creep": 5.0, "drift": 8.0}, ["creep", "saturation"], 0.6),
     _row(7, "pi", "pair", {"delay": 4.0, "clip": 9.0}, ["delay"], 0.4),
-    _row(8, "rate", "single", {"clip": 6.0}, [], 0.0, tones=[{"hz": 7.0, "share": 0.3}]),
+    _row(8, "rate", "single", {"clip": 6.0}, [], 0.0, tones=[{"hz": 7.0, "share": 0.3}], seen={"clip": 0.5}),
     {"seed": 9, "family": "rate", "kind": "single", "injected": {"creep": {"magnitude": 4.0, "params": {}}},
      "error": "RuntimeError: boom"},
     _row(10, "rate", "single", {"creep": 1.0}, ["creep"], 0.3),
@@ -186,6 +211,8 @@ def test_summary_per_family_on_hand_computed_rows(tmp_path):
     assert s["top1"] == (2, 4)                 # rows 1, 3 of 1, 2, 3, 8 (row 10 is 1 σ)
     assert s["top1_unabsorbed"] == (1, 1)      # row 1 (row 2 absorbed; 3, 8 not measured)
     assert s["top1_mid_drive"] == (1, 1)
+    # 0.5 σ on the training records counts as seen (row 8), 0.4 not (row 2); row 3 keeps no training magnitude
+    assert s["top1_seen"] == (1, 2) and s["top1_unseen"] == (0, 1)
     assert s["null_named"] == (1, 2)           # rows 4, 5
     assert s["form_material_named"] == (1, 2)  # rows 3, 4
     assert s["form_absent_named"] == (1, 2)    # rows 1, 2
@@ -209,6 +236,7 @@ def test_summary_per_family_on_hand_computed_rows(tmp_path):
     assert "### family preisach (3 scenarios, 0 failed to run)" in text
     assert "| top-1 on material single effects (≥ 2 σ) | 2/4 = 50 % |" in text
     assert "| pairs: precision | 2/3 = 67 % |" in text
+    assert "|   of these, not seen in the training records (< 0.5 σ there) | 0/1 = 0 % |" in text
     assert "| gap_closed, material in-library (n=4): median / 10th percentile | 0.700 / 0.530 |" in text
     assert "| clip | 0 | 0 | 0 | 1 |" in text
     assert text.count("### ") == 5
