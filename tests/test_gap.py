@@ -406,6 +406,32 @@ def test_remaining_shares_are_each_records_excess_over_the_floor():
     c = Record.from_arrays(u=np.zeros(2000), y=b.y, dt=DT, path="a")
     left = remaining([c, a], [np.zeros(2000), np.zeros(4000)], 0.005, [flag])
     assert [len(r["outside"]) for r in left] == [1, 0] and left[0]["rms"] == pytest.approx(0.3)
+    assert all(r["beyond_input_range"] is None for r in left)   # no amplitude flag
+
+
+def test_remaining_says_how_much_of_a_records_gap_lies_beyond_the_training_range():
+    # 1000 samples, 100 of them above the training's 114.8 V and 50 below its
+    # 0.5 V; residual 0.4 µm on the 100, 0.1 µm elsewhere, σ² = 0.002
+    u = np.full(1000, 60.0)
+    u[200:300], u[600:650] = 118.0, 0.0
+    e = np.full(1000, 0.1)
+    e[200:300] = 0.4
+    r = Record.from_arrays(u=u, y=e, dt=DT, path="sine")
+    hi = {"condition": "u_max", "train": 114.8, "validate": 118.0, "record": "sine", "index": 0}
+    lo = {"condition": "u_min", "train": 0.5, "validate": 0.0, "record": "sine", "index": 0}
+    total = 100 * 0.16 + 900 * 0.01 - 1000 * 0.002
+    (only_hi,) = remaining([r], [np.zeros(1000)], 0.002, [hi])
+    assert only_hi["beyond_input_range"]["samples"] == pytest.approx(0.1)
+    assert only_hi["beyond_input_range"]["gap"] == pytest.approx((100 * 0.16 - 100 * 0.002) / total)
+    (both,) = remaining([r], [np.zeros(1000)], 0.002, [hi, lo])
+    assert both["beyond_input_range"]["samples"] == pytest.approx(0.15)
+    assert both["beyond_input_range"]["gap"] == pytest.approx((100 * 0.16 + 50 * 0.01 - 150 * 0.002) / total)
+    # the verdict's words: the record, its flags and the split
+    from fonbw.gap.selection import verdict
+    v = verdict([], mse0=0.3, excess0=0.3, mse=0.3, at_floor=False, steps=[], coverage=[hi], params={},
+                remaining=[{**only_hi, "share": 0.9}])
+    assert "highest input 118 against 114.8 V" in v["message"]
+    assert "69 % of it on the 10 % of its samples where the input leaves the training range" in v["message"]
 
 
 def test_unexplained_verdict_says_where_the_gap_lies_and_which_bounds_bind():
@@ -871,6 +897,11 @@ def test_later_steps_say_why_no_second_effect_was_named(stroke_limit, tmp_path):
     page = (tmp_path / "r.html").read_text(encoding="utf-8")
     assert "On top of saturation" in page and "the block itself accounts for" in page
     assert "3 step edges in the training records" in page
+    # the validation sines go to 120 V, training to 114.8 V: the samples above
+    # it are the top 13 % of a 60 − 60 cos sine (cos θ < −0.913)
+    up = [r for r in v["remaining"] if any(f["condition"] == "u_max" for f in r["outside"])]
+    assert up and all(r["beyond_input_range"]["samples"] == pytest.approx(0.133, abs=0.01) for r in up)
+    assert "samples out of range)" in page
 
 
 def test_the_report_says_what_became_of_each_candidate():

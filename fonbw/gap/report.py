@@ -145,6 +145,14 @@ def _candidate_row(c):
             f"<td>{esc(outcome_text(c))}</td><td>{esc(params)}</td></tr>")
 
 
+def _beyond_cell(r):
+    """The remaining-gap table's note on samples beyond the training range ('' when none)."""
+    b = r.get("beyond_input_range")
+    if not b:
+        return ""
+    return f" ({100 * b['gap']:.0f} % of its gap on the {100 * b['samples']:.0f} % of samples out of range)"
+
+
 def write_html(result, path):
     """Write a self-contained HTML report of a :func:`fonbw.gap.diagnose` result."""
     figs = _figures(result)
@@ -169,7 +177,7 @@ def write_html(result, path):
     loop_img = f'<img src="{figs["loops"]}" alt="loop-shape residual">' if "loops" in figs else ""
     left = "".join(
         f"<tr><td>{esc(r['record'])}</td><td>{100 * r['share']:.1f}</td><td>{r['rms']:.4g}</td>"
-        f"<td>{esc('; '.join(flag_text(f) for f in r['outside']) or 'no')}</td></tr>"
+        f"<td>{esc('; '.join(flag_text(f) for f in r['outside']) or 'no')}{_beyond_cell(r)}</td></tr>"
         for r in v.get("remaining", []))
     cov = "".join(f"<li>{esc(c['record'])}: {esc(c['condition'])} {c['validate']:.4g} (training up to {c['train']:.4g})</li>"
                   for c in v.get("coverage", [])) or "<li>none</li>"

@@ -239,8 +239,12 @@ def _left_text(remaining, at_bounds, unexplained):
         text += f"; {100 * top['share']:.0f} % of the gap left lies on {top['record']}"
         if top["outside"]:
             beyond = ", ".join(flag_text(f) for f in top["outside"])
-            text += (f", beyond the training records ({beyond}): the models extrapolate there; "
-                     "a training record that covers it would tell")
+            text += f", beyond the training records ({beyond}): the models extrapolate there"
+            b = top.get("beyond_input_range")
+            if b and b["gap"] > 0:
+                text += (f"; {100 * b['gap']:.0f} % of it on the {100 * b['samples']:.0f} % of its samples "
+                         "where the input leaves the training range")
+            text += "; a training record that covers it would tell"
     if unexplained and at_bounds:
         text += (f"; the nominal FONBW ends at the bounds of {', '.join(at_bounds)} "
                  "(the best FONBW for these records may lie outside its search range)")
