@@ -161,8 +161,16 @@ def test_run_scenario_row_and_oracle_cache():
     del old["injected"][name]["magnitude_train"]
     assert tm.fill(old, 1.0)["injected"][name]["magnitude_train"] == inj["magnitude_train"]
     del old["injected"][name]["magnitude_train"]
-    with pytest.raises(SystemExit, match="not the scenario of this row"):
+    with pytest.raises(SystemExit, match="records cut mid-drive at"):
         tm.fill(old, 0.0)   # drawn at rest: another scenario
+    # a layout that differs while every validation magnitude would match (a
+    # cut on a training record alone) is refused too
+    other = {"train": [0, 999], "validate": None} if row["mid_drive"]["validate"] else \
+        {"train": None, "validate": [0, 999]}
+    with pytest.raises(SystemExit, match="not the scenario of this row"):
+        tm.fill({**old, "mid_drive": other}, 1.0)
+    with pytest.raises(SystemExit, match="stored single"):
+        tm.fill({**old, "injected": {"nothing": {"magnitude": 1.0, "params": {}}}}, 1.0)
     assert row["named"] == ["creep"] and row["form"] is None
     # each candidate's fitted parameters are kept (reading a miss needs no rerun)
     assert [c["params"]["p"] for c in row["candidates"]] == list(range(len(gs.LIBRARY)))

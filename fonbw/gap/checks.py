@@ -213,25 +213,28 @@ def remaining(records, preds, sigma2, flags=()):
         Per record, largest share first: ``record``, ``share`` (its part of
         Σ n_i max(MSE_i − σ², 0), 0 when nothing is left), ``rms`` [µm],
         ``outside`` (its coverage flags: conditions beyond the training
-        records) and ``beyond_input_range`` (None unless its input leaves the
-        training records' range: ``samples``, the share of its samples out
-        there, and ``gap``, the share of its excess on them).
+        records) and ``beyond_input_range`` (None unless an amplitude flag
+        of :func:`coverage` says its input goes past the training range by
+        more than :data:`AMPLITUDE_TOL`: ``samples``, the share of its
+        samples beyond the training's highest or lowest input, and ``gap``,
+        the share of its excess on them).
     """
     out = []
     for i, (r, p) in enumerate(zip(records, preds)):
         e2 = (r.y - p) ** 2
         mi = float(np.mean(e2))
+        excess = len(r.y) * max(mi - sigma2, 0.0)
         # by position: records read from memory can share a name
         own = [f for f in flags if f.get("index", i) == i and f["record"] == str(r.path)]
-        out.append({"record": str(r.path), "excess": len(r.y) * max(mi - sigma2, 0.0), "rms": float(np.sqrt(mi)),
-                    "outside": own, "beyond_input_range": _beyond_range(r.u, e2, sigma2, own)})
+        out.append({"record": str(r.path), "excess": excess, "rms": float(np.sqrt(mi)),
+                    "outside": own, "beyond_input_range": _beyond_range(r.u, e2, sigma2, excess, own)})
     total = sum(d["excess"] for d in out)
     for d in out:
         d["share"] = d.pop("excess") / total if total > 0 else 0.0
     return sorted(out, key=lambda d: -d["share"])
 
 
-def _beyond_range(u, e2, sigma2, flags):
+def _beyond_range(u, e2, sigma2, excess, flags):
     """Where a record's input leaves the training range its amplitude flags
     name: the share of its samples out there and of its excess error on them.
 
@@ -241,16 +244,15 @@ def _beyond_range(u, e2, sigma2, flags):
     follows, so the two shares tell the user which to suspect.
     """
     lim = {f["condition"]: f["train"] for f in flags if f["condition"] in ("u_max", "u_min")}
-    if not lim:
+    if not lim or not u.size:
         return None
     out = np.zeros(u.shape, dtype=bool)
     if "u_max" in lim:
         out |= u > lim["u_max"]
     if "u_min" in lim:
         out |= u < lim["u_min"]
-    total = float(np.sum(e2)) - e2.size * sigma2
     part = float(np.sum(e2[out])) - int(out.sum()) * sigma2
-    return {"samples": float(out.mean()), "gap": min(max(part / total, 0.0), 1.0) if total > 0 else 0.0}
+    return {"samples": float(out.mean()), "gap": min(max(part / excess, 0.0), 1.0) if excess > 0 else 0.0}
 
 
 def mse(records, preds):

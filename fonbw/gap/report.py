@@ -148,7 +148,7 @@ def _candidate_row(c):
 def _beyond_cell(r):
     """The remaining-gap table's note on samples beyond the training range ('' when none)."""
     b = r.get("beyond_input_range")
-    if not b:
+    if not b or b["gap"] <= 0:  # as the verdict's message: nothing of the gap out there, nothing to say
         return ""
     return f" ({100 * b['gap']:.0f} % of its gap on the {100 * b['samples']:.0f} % of samples out of range)"
 
