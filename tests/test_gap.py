@@ -372,6 +372,25 @@ def test_coverage_flags_faster_validation():
     assert coverage([fast], [slow], DT) == []
 
 
+def test_coverage_flags_a_hold_longer_than_the_trainings():
+    def held(n, k):
+        # a 1-Hz sine with its input held for k sample steps from sample 300 on
+        u = 60 - 60 * np.cos(2 * np.pi * np.arange(n) * DT)
+        u[300:301 + k] = u[300]
+        return Record.from_arrays(u=u, y=np.zeros(n), dt=DT)
+
+    def holds(tr, va):
+        # the hold's flags only (a longer hold also moves the input's spectrum)
+        return [(x["condition"], x["train"], x["validate"]) for x in coverage([tr], [va], DT)
+                if x["condition"] == "hold_s"]
+
+    assert holds(held(6000, 800), held(6000, 2000)) == [("hold_s", 800 * DT, 2000 * DT)]
+    # 10 % longer is still covered; a hold under 50 ms is a turning point
+    assert holds(held(6000, 800), held(6000, 880)) == []
+    assert holds(held(6000, 10), held(6000, 200)) == []
+    assert holds(held(6000, 10), held(6000, 260)) == [("hold_s", 10 * DT, 260 * DT)]
+
+
 def test_coverage_flags_inputs_past_the_training_range_by_its_span():
     t = np.arange(10000) * DT
     zero = np.zeros(t.size)

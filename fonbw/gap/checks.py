@@ -151,10 +151,7 @@ def coverage(train, validate, dt):
     def stats(r):
         u = r.u
         rate = np.abs(np.diff(u)) / dt
-        hold, run = 0, 0
-        for s in np.abs(np.diff(u)) <= 1e-6 * max(np.ptp(u), 1e-9):
-            run = run + 1 if s else 0
-            hold = max(hold, run)
+        hold = _longest_run(np.abs(np.diff(u)) <= 1e-6 * max(np.ptp(u), 1e-9))
         U = np.fft.rfft(u - u.mean())
         f = np.fft.rfftfreq(len(u), dt)
         p = np.abs(U) ** 2
@@ -184,6 +181,13 @@ def coverage(train, validate, dt):
         flags += [{"condition": k, "train": lim, "validate": s[k], "record": str(r.path), "index": i}
                   for k, lim in out]
     return flags
+
+
+def _longest_run(steady):
+    """Length of the longest run of True in the boolean array `steady` (0 if none)."""
+    edges = np.diff(np.concatenate(([0], steady.astype(np.int8), [0])))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    return int((ends - starts).max()) if starts.size else 0
 
 
 def flag_text(flag):
