@@ -577,14 +577,16 @@ def test_form_with_no_effect_named_reuses_the_nominals_bootstrap(monkeypatch):
 def test_form_with_no_effect_named_asked_only_when_nothing_else_decides(monkeypatch, case):
     from fonbw.gap import form as fm
 
-    asked = []
+    asked, on_reference = [], []
     monkeypatch.setattr(fm, "form_alone", lambda d: asked.append(d) or {"passed": False, "drop_sigma2": 0.0})
+    monkeypatch.setattr(fm, "_effects_on_the_reference", on_reference.append)
     d = _alone_case(8.0)
     fm.judge_on_effects(d)
     assert len(asked) == 1   # the case itself asks
     asked.clear()
     d = _alone_case(8.0)
     if case == "reference loses":
+        # then effects are looked for on the reference instead
         d.mse_ref = d.mse0 + 1e-6
     elif case == "at the floor":
         d.at_floor = True
@@ -595,7 +597,7 @@ def test_form_with_no_effect_named_asked_only_when_nothing_else_decides(monkeypa
         monkeypatch.setattr(fm, "_keep_or_revoke", lambda d: {"passed": True, "gap_closed_after_effects": None})
         d.accepted, d.att = ["creep"], {"core": "reference"}
     fm.judge_on_effects(d)
-    assert asked == []
+    assert asked == [] and on_reference == ([d] if case == "reference loses" else [])
 
 
 def test_form_stands_when_fonbw_with_the_effects_diverges():
@@ -906,3 +908,70 @@ def test_a_later_effect_is_material_when_it_closes_much_of_what_is_left():
     assert not material(1, 9.5, 9.5 - 2.5)      # 29 %
     assert not material(1, 2.0, 2.0 - 0.9)      # 90 % of what is left, but under σ²
     assert material(1, 2.2, 2.2 - 1.05)         # 88 % and 1.05 σ²
+
+
+def _behind_case(form_gc):
+    """FONBW named nothing; the reference alone is behind it by `form_gc` of
+    FONBW's excess. Attributing on the reference (a stand-in for the greedy
+    stage) names creep and narrows a block of the library in place."""
+    from types import SimpleNamespace
+
+    s2 = 1e-4
+    d = SimpleNamespace(
+        sigma2=s2, at_floor=False, accepted=[], candidates=["on FONBW"], later_steps=[], edges="edges",
+        mse0=20 * s2, mse_ref=28 * s2, excess0=19 * s2, form={"material": False, "gap_closed": form_gc},
+        steps=[{"label": "nominal", "rms_validate": np.sqrt(20 * s2)}], current={"mse": 20 * s2},
+        att={"core": "fonbw"}, lib=["creep block", "delay block"], timing={"attribute_s": 7.0},
+        say=lambda *a: None, reference_att=lambda: {"core": "reference"}, calls=[])
+
+    def attribute():
+        d.calls.append(d.att["core"])
+        d.lib[1] = "delay block, narrowed"
+        d.accepted, d.candidates = ["creep"], ["on the reference"]
+        d.steps = [d.steps[0], {"label": "form", "rms_validate": np.sqrt(28 * s2)},
+                   {"label": "+creep", "rms_validate": np.sqrt(3 * s2)}]
+        d.current = {"mse": 3 * s2, "eff": ["creep"]}
+        d.timing["attribute_s"] = 30.0
+
+    d.attribute = attribute
+    return d
+
+
+def test_effects_found_on_the_reference_when_fonbw_names_none(monkeypatch):
+    from fonbw.gap import form as fm
+    from fonbw.gap import selection
+
+    d = _behind_case(-0.4)
+    fonbw_s = {"mse": 24e-4}
+    confirmed = {"passed": True, "gap_closed_after_effects": 21 / 23, "delta_bic_after_effects": -900.0,
+                 "bootstrap_after_effects": {"p10": 0.8},
+                 "where": {"dominant": "branch", "top": 0.5, "bottom": 0.1, "minor_loops": 0.0}}
+    monkeypatch.setattr(fm, "confirm_form", lambda dd, cur: (dict(confirmed), fonbw_s))
+    fm.judge_on_effects(d)
+    assert d.calls == ["reference"] and d.accepted == ["creep"] and d.att == {"core": "reference"}
+    f = d.form
+    assert f["material"] and f["found_with_effects"] and f["gap_closed"] == -0.4
+    assert f["gap_closed_after_effects"] == pytest.approx(21 / 23) and f["where"]["dominant"] == "branch"
+    assert f["confirmed_rms_fonbw_effects"] == pytest.approx(np.sqrt(24e-4))
+    assert [s["label"] for s in d.steps] == ["nominal", "form", "+creep"]
+    assert d.timing["attribute_s"] == 7.0 and d.timing["attribute_reference_s"] == 30.0
+    assert d.lib[1] == "delay block, narrowed"
+    assert "alone it does worse than FONBW" in selection.form_text(f) and "0.913 of what FONBW" in \
+        selection.form_text(f)
+
+
+@pytest.mark.parametrize("form_gc, at_floor, passed", [(-0.4, False, False), (-1.0, False, True),
+                                                        (-0.4, True, True)])
+def test_effects_on_the_reference_leave_the_diagnosis_as_it_was(monkeypatch, form_gc, at_floor, passed):
+    from fonbw.gap import form as fm
+
+    d = _behind_case(form_gc)
+    d.at_floor = at_floor
+    before = {k: getattr(d, k) for k in ("att", "candidates", "accepted", "steps", "current", "edges", "form")}
+    lib = list(d.lib)
+    monkeypatch.setattr(fm, "confirm_form", lambda dd, cur: ({"passed": passed, "gap_closed_after_effects": 0.1,
+                                                              "where": None}, {"mse": 24e-4}))
+    fm.judge_on_effects(d)
+    # refused by the form's check, or not tried at all (the reference too far behind, FONBW at the floor)
+    assert d.calls == (["reference"] if form_gc > -1 and not at_floor else [])
+    assert {k: getattr(d, k) for k in before} == before and d.lib == lib and d.timing["attribute_s"] == 7.0

@@ -110,7 +110,10 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         ``gap_closed_after_effects`` (share of what FONBW + the effects
         leaves), ``delta_bic_after_effects``, ``bootstrap_after_effects``;
         ``found_alone`` and ``drop_sigma2`` (the validation MSE it removes,
-        in noise variances) when it was named with no effect beside it.
+        in noise variances) when it was named with no effect beside it;
+        ``found_with_effects`` when the effects were found on the reference
+        after FONBW named none, the reference alone doing worse than FONBW
+        (its ``gap_closed`` is then negative).
     start : dict, optional
         How the records start (burn-ins).
     remaining : list of dict, optional
@@ -196,6 +199,10 @@ def form_text(form):
     if material and form.get("found_alone"):
         text += (f", with no effect named: it lowers the validation MSE by {form['drop_sigma2']:.3g} noise "
                  "variances, and what is left no candidate explains")
+    if material and form.get("found_with_effects"):
+        text += (f", beside the effects: alone it does worse than FONBW, whose fractional memory takes up part of "
+                 f"them, and on top of them it closes {form['gap_closed_after_effects']:.3g} of what FONBW + "
+                 "them leaves")
     if material and form.get("found_after_effects"):
         text += (f", found on top of the accepted effects ({form['gap_closed_after_effects']:.3g} of what "
                  "they leave)")
