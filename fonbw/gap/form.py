@@ -521,9 +521,10 @@ def _effects_on_the_reference(d):
     out = None
     if d.accepted:
         out, fonbw_s = confirm_form(d, d.current)
+        g = out["gap_closed_after_effects"]
         d.say(f"form on top of {', '.join(d.accepted)} (on the reference): closes "
-              f"{out['gap_closed_after_effects']} of what FONBW + them leaves, "
-              f"{'material' if out['passed'] else 'not material'}")
+              f"{'–' if g is None else f'{g:.3f}'} of what FONBW + them leaves, "
+              f"{'material' if out['passed'] else 'not material; the effects are dropped'}")
     d.timing["form_on_effects_s"] = time.perf_counter() - t0
     if out is not None and out["passed"]:
         d.form.update({k: v for k, v in out.items() if k != "passed"})
