@@ -958,6 +958,8 @@ def test_effects_found_on_the_reference_when_fonbw_names_none(monkeypatch):
     assert d.lib[1] == "delay block, narrowed"
     assert "alone it does worse than FONBW" in selection.form_text(f) and "0.913 of what FONBW" in \
         selection.form_text(f)
+    # FONBW + the effects diverging on a validation record leaves the form standing, with no share
+    assert "FONBW + them diverges" in selection.form_text({**f, "gap_closed_after_effects": None})
 
 
 @pytest.mark.parametrize("form_gc, at_floor, passed", [(-0.4, False, False), (-1.0, False, True),

@@ -511,7 +511,6 @@ def _effects_on_the_reference(d):
     keep = ("att", "candidates", "accepted", "later_steps", "steps", "current", "edges")
     saved, lib = {k: getattr(d, k) for k in keep}, list(d.lib)
     t_fonbw = d.timing.get("attribute_s")
-    t0 = time.perf_counter()
     d.say("FONBW names no effect and the reference alone does worse: effects on the reference")
     d.att = d.reference_att()
     d.attribute()
@@ -520,12 +519,13 @@ def _effects_on_the_reference(d):
         d.timing["attribute_s"] = t_fonbw
     out = None
     if d.accepted:
+        t0 = time.perf_counter()
         out, fonbw_s = confirm_form(d, d.current)
+        d.timing["form_on_effects_s"] = time.perf_counter() - t0
         g = out["gap_closed_after_effects"]
         d.say(f"form on top of {', '.join(d.accepted)} (on the reference): closes "
               f"{'–' if g is None else f'{g:.3f}'} of what FONBW + them leaves, "
               f"{'material' if out['passed'] else 'not material; the effects are dropped'}")
-    d.timing["form_on_effects_s"] = time.perf_counter() - t0
     if out is not None and out["passed"]:
         d.form.update({k: v for k, v in out.items() if k != "passed"})
         d.form.update(material=True, found_with_effects=True,
