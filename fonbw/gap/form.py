@@ -389,8 +389,12 @@ def judge_on_effects(d):
     """The form judged on top of the accepted effects, from the nominal they
     were attributed on: on the reference, the form stands or is revoked
     (:func:`confirm_form`); on FONBW, it can be named after them
-    (:func:`form_after_effects`). Updates ``d.form``, ``d.current``,
-    ``d.att`` and ``d.steps``."""
+    (:func:`form_after_effects`). With none accepted, the form alone
+    (:func:`form_alone`) or effects looked for on the reference
+    (:func:`_effects_on_the_reference`). Updates ``d.form``, ``d.current``,
+    ``d.att`` and ``d.steps`` (and, when effects are found on the reference,
+    what the attribution sets: candidates, accepted, later steps, edges and
+    the library)."""
     # the reference alone must beat FONBW alone on validation before a form is
     # named late: one that wins only beside an effect takes up that block's
     # misfit (a one-pole amplifier for a two-pole one on a FONBW core), not loop shape
@@ -507,7 +511,10 @@ def _reference_behind_by_an_effect(d):
 def _effects_on_the_reference(d):
     """Attribute on the reference after FONBW named nothing; keep what it
     finds only when the form is then material on top of its effects
-    (:func:`confirm_form`). Otherwise the diagnosis is left as it was."""
+    (:func:`confirm_form`; a FONBW + them that diverges is no evidence here,
+    the form was not material to begin with) and the reference with them
+    beats FONBW alone by what a first effect must close. Otherwise the
+    diagnosis is left as it was (its timing keeps the time spent)."""
     keep = ("att", "candidates", "accepted", "later_steps", "steps", "current", "edges")
     saved, lib = {k: getattr(d, k) for k in keep}, list(d.lib)
     t_fonbw = d.timing.get("attribute_s")
@@ -517,16 +524,22 @@ def _effects_on_the_reference(d):
     d.timing["attribute_reference_s"] = d.timing.pop("attribute_s")
     if t_fonbw is not None:
         d.timing["attribute_s"] = t_fonbw
-    out = None
-    if d.accepted:
+    kept = False
+    if not d.accepted:
+        d.say("none accepted on the reference either")
+    else:
         t0 = time.perf_counter()
         out, fonbw_s = confirm_form(d, d.current)
-        d.timing["form_on_effects_s"] = time.perf_counter() - t0
+        t_form = time.perf_counter() - t0
         g = out["gap_closed_after_effects"]
+        drop = d.mse0 - d.current["mse"]
+        beats = drop >= d.min_gap_closed * d.excess0 and drop >= checks.LATE_DROP * d.sigma2
+        kept = bool(out["passed"] and not out.get("fonbw_effects_diverged") and beats)
         d.say(f"form on top of {', '.join(d.accepted)} (on the reference): closes "
-              f"{'–' if g is None else f'{g:.3f}'} of what FONBW + them leaves, "
-              f"{'material' if out['passed'] else 'not material; the effects are dropped'}")
-    if out is not None and out["passed"]:
+              f"{'–' if g is None else f'{g:.3f}'} of what FONBW + them leaves; with them the reference "
+              f"closes {drop / d.excess0:.3f} of FONBW's gap: {'kept' if kept else 'the effects are dropped'}")
+    if kept:
+        d.timing["form_on_effects_s"] = t_form
         d.form.update({k: v for k, v in out.items() if k != "passed"})
         d.form.update(material=True, found_with_effects=True,
                       confirmed_rms_fonbw_effects=math.sqrt(fonbw_s["mse"]) if math.isfinite(fonbw_s["mse"])

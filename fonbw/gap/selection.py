@@ -200,10 +200,9 @@ def form_text(form):
         text += (f", with no effect named: it lowers the validation MSE by {form['drop_sigma2']:.3g} noise "
                  "variances, and what is left no candidate explains")
     if material and form.get("found_with_effects"):
-        g = form.get("gap_closed_after_effects")
-        text += (", beside the effects: alone it does worse than FONBW, whose fractional memory takes up part of "
-                 "them, and on top of them " + ("FONBW + them diverges on a validation record" if g is None else
-                                                f"it closes {g:.3g} of what FONBW + them leaves"))
+        text += (f", beside the effects: alone it does worse than FONBW, whose fractional memory takes up part of "
+                 f"them, and on top of them it closes {form['gap_closed_after_effects']:.3g} of what FONBW + "
+                 "them leaves")
     if material and form.get("found_after_effects"):
         text += (f", found on top of the accepted effects ({form['gap_closed_after_effects']:.3g} of what "
                  "they leave)")
