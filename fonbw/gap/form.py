@@ -389,12 +389,10 @@ def judge_on_effects(d):
     """The form judged on top of the accepted effects, from the nominal they
     were attributed on: on the reference, the form stands or is revoked
     (:func:`confirm_form`); on FONBW, it can be named after them
-    (:func:`form_after_effects`). With none accepted, the form alone
-    (:func:`form_alone`) or effects looked for on the reference
-    (:func:`_effects_on_the_reference`). Updates ``d.form``, ``d.current``,
-    ``d.att`` and ``d.steps`` (and, when effects are found on the reference,
-    what the attribution sets: candidates, accepted, later steps, edges and
-    the library)."""
+    (:func:`form_after_effects`). With none accepted, the form alone or
+    effects looked for on the reference. Updates ``d.form``, ``d.current``,
+    ``d.att``, ``d.steps`` (and what the attribution sets, when effects are
+    found on the reference)."""
     # the reference alone must beat FONBW alone on validation before a form is
     # named late: one that wins only beside an effect takes up that block's
     # misfit (a one-pole amplifier for a two-pole one on a FONBW core), not loop shape
@@ -488,16 +486,11 @@ def form_alone(d):
     return {"passed": bool(passed and boot["p10"] > 0), "drop_sigma2": float(drop / d.sigma2), "bootstrap": boot}
 
 
-#: How far behind FONBW the reference alone may be [form gap closed, a
-#: share of FONBW's excess] for the diagnosis to attribute effects on it when
-#: FONBW names none. A strong effect the reference leaves to its block by
-#: design (creep: its fractional memory is cut short) can put it behind FONBW,
-#: whose fractional memory takes part of it up; then the effect's block on
-#: FONBW moves FONBW's own parameters and fails. Blind-harness seed 41034 (a
-#: rate-dependent core, 91 σ of creep): the reference alone −0.40, FONBW +
-#: creep closes −0.17, the reference + creep 0.91 of its excess. On FONBW
-#: cores with mains hum the reference alone is at −0.11 to −0.94; with no
-#: effect it is usually far behind (−50 to −2500).
+#: How far behind FONBW [form gap closed] the reference alone may be for
+#: effects to be looked for on it when FONBW names none: a strong creep, left
+#: to its block by the reference, puts it behind FONBW, whose memory takes part
+#: of it up (seed 41034: −0.40; FONBW + creep −0.17, the reference + creep
+#: 0.91). FONBW cores: −0.11 to −0.94 with mains hum, −50 to −2500 without.
 REFERENCE_BEHIND = -1.0
 
 
