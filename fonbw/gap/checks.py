@@ -150,8 +150,9 @@ def coverage(train, validate, dt):
     """
     def stats(r):
         u = r.u
-        rate = np.abs(np.diff(u)) / dt
-        hold = _longest_run(np.abs(np.diff(u)) <= 1e-6 * max(np.ptp(u), 1e-9))
+        du = np.abs(np.diff(u))
+        rate = du / dt
+        hold = _longest_run(du <= 1e-6 * max(np.ptp(u), 1e-9))
         U = np.fft.rfft(u - u.mean())
         f = np.fft.rfftfreq(len(u), dt)
         p = np.abs(U) ** 2

@@ -508,8 +508,9 @@ def _effects_on_the_reference(d):
     the form was not material to begin with) and the reference with them
     beats FONBW alone by what a first effect must close. Otherwise the
     diagnosis is left as it was (its timing keeps the time spent)."""
-    keep = ("att", "candidates", "accepted", "later_steps", "steps", "current", "edges")
-    saved, lib = {k: getattr(d, k) for k in keep}, list(d.lib)
+    # every attribute the attribution rebinds (current, candidates, edges, ...)
+    # goes back by the snapshot; the library is changed in place
+    saved, lib = dict(vars(d)), list(d.lib)
     t_fonbw = d.timing.get("attribute_s")
     d.say("FONBW names no effect and the reference alone does worse: effects on the reference")
     d.att = d.reference_att()
@@ -538,8 +539,8 @@ def _effects_on_the_reference(d):
                       confirmed_rms_fonbw_effects=math.sqrt(fonbw_s["mse"]) if math.isfinite(fonbw_s["mse"])
                       else None)
         return
-    for k, v in saved.items():
-        setattr(d, k, v)
+    vars(d).clear()
+    vars(d).update(saved)
     d.lib[:] = lib
 
 
