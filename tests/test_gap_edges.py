@@ -251,6 +251,22 @@ def test_the_delays_the_edges_allow_bracket_the_dead_time():
     assert e.onset[0] > 0 and e.dead_time() is None
 
 
+def test_the_delays_searched_are_those_within_the_dead_time_the_edges_accept():
+    # 6 samples still, then a jump J. A delay of d samples lets
+    # clip(j + 1 − d, 0, 1) of the step through by sample j, so from sample 4
+    # to 6 it lets d − 4 (d ≤ 5), 1, or 7 − d (d ≥ 6): kept where that is at
+    # least (J − MARGIN) / RATIO, within the bracket of 4 to 7 samples
+    e = StepEdges(_records(_delayed(6)), DT, sigma=0.001)
+    jump = float(np.median(e.profile[:, 6] - e.profile[:, 5]))
+    need = (jump - edges.MARGIN) / edges.RATIO
+    assert 0.2 < need < 0.3
+    lo, hi = e.delays_within_dead_time(Delay(DT))
+    assert 4.0 + need <= lo / DT < 4.0 + need + 0.05 + 1e-9
+    assert 7.0 - need - 0.05 - 1e-9 < hi / DT <= 7.0 - need
+    # no dead time, nothing to search
+    assert StepEdges(_records(_viscous_core), DT, sigma=0.001).delays_within_dead_time(Delay(DT)) is None
+
+
 def test_a_delay_block_is_searched_where_the_edges_allow():
     delay = Delay(DT)
     near = delay.within(4.0 * DT, 7.0 * DT)
@@ -266,7 +282,8 @@ def test_a_delay_block_is_searched_where_the_edges_allow():
 
 def test_a_delay_the_edges_refuse_is_searched_again_within_their_dead_time():
     # the first refit ends two samples short of a 6-sample dead time (the
-    # edges refuse it); the second searches only 4 to 7 samples and is kept
+    # edges refuse it); the second searches only the delays of 4 to 7 samples
+    # the edges accept and is kept
     from fonbw.gap.greedy import GreedySteps
 
     amp, delay = Amplifier(DT, 100.0), Delay(DT)
@@ -288,10 +305,12 @@ def test_a_delay_the_edges_refuse_is_searched_again_within_their_dead_time():
                          check_candidate=check_candidate)
     cur = {"idx": [], "fit": None, "eff": []}
     fit, _, _, out, block = GreedySteps.refit_and_check(me, 1, 0, cur)
-    np.testing.assert_allclose(searched, [(0.0, 25.0 * DT), (4.0 * DT, 7.0 * DT)], rtol=1e-12)
+    lo, hi = edges_.delays_within_dead_time(delay)
+    assert 4.0 * DT < lo < 5.0 * DT and 6.0 * DT < hi < 7.0 * DT
+    np.testing.assert_allclose(searched, [(0.0, 25.0 * DT), (lo, hi)], rtol=1e-12)
     assert out["refused"] is None and fit["th"][0][0] == 6.0 * DT
-    np.testing.assert_allclose(out["searched_within_s"], (4.0 * DT, 7.0 * DT), rtol=1e-12)
-    assert block.bounds == [(4.0 * DT, 7.0 * DT)] and me.lib[1] is delay
+    np.testing.assert_allclose(out["searched_within_s"], (lo, hi), rtol=1e-12)
+    assert block.bounds == [(lo, hi)] and me.lib[1] is delay
     # a block that cannot be narrowed is fitted once, refused or not (a fast
     # amplifier lets the step through long before the output moves)
     searched.clear()

@@ -161,15 +161,17 @@ class GreedySteps:
     def refit_and_check(self, i, step, cur):
         """Refit library effect `i` on top of the configuration `cur` and check it
         (:meth:`refit_candidate`, :meth:`check_candidate`). A block that can be
-        searched where the training records' step edges allow (a delay, within
-        their dead time: :meth:`fonbw.gap.edges.StepEdges.dead_time`) and that
+        searched where the training records' step edges allow (a delay, over
+        the delays within their dead time they accept:
+        :meth:`fonbw.gap.edges.StepEdges.delays_within_dead_time`) and that
         they refuse as fitted is refitted once more there; its checks then hold
         that range (``searched_within_s``). Returns (fit, validation
         predictions, validation MSE, checks, the block as fitted)."""
         block = self.lib[i]
         fit, pv, mse = self.refit_candidate(cur["idx"] + [i], cur["fit"])
         out = self.check_candidate(i, step, fit, pv, mse, cur["eff"] + [block])
-        dead = self.edges.dead_time() if out["refused"] is not None and hasattr(block, "within") else None
+        dead = (self.edges.delays_within_dead_time(block)
+                if out["refused"] is not None and hasattr(block, "within") else None)
         narrowed = None if dead is None else block.within(*dead)
         if narrowed is None:
             return fit, pv, mse, out, block
