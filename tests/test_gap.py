@@ -497,6 +497,22 @@ def test_effects_are_listed_strongest_first_in_the_order_they_were_accepted():
     assert v["gap_closed"] == pytest.approx((0.25 - 0.0025) / 0.249)
 
 
+def test_the_verdict_says_which_effect_was_judged_within_the_training_rates():
+    from fonbw.gap.selection import verdict
+
+    # a delay that closes 0.81 of the gap of the two records within the
+    # training rates and makes the whole gap 0.33 wider (seed 38038's figures)
+    w = {"delay": {"records": ["steps_v", "sine1"], "gap_closed": 0.809, "gap_closed_all": -0.333}}
+    kw = dict(mse0=0.39, excess0=0.39, at_floor=False, coverage=[], params={},
+              steps=[{"label": "nominal", "rms_validate": 0.6245}])
+    v = verdict(["delay"], mse=0.0152, within_rates=w, **kw)
+    assert v["within_training_rates"] == w and v["effects"] == ["delay"]
+    assert v["message"] == ("explained by delay; delay closes 0.81 of the gap on the validation records within the "
+                            "training records' input rates (steps_v, sine1) and -0.33 on all: the faster ones, "
+                            "where the models extrapolate, do not show it")
+    assert verdict(["delay"], mse=0.0152, **kw)["within_training_rates"] == {}
+    assert verdict(["delay"], mse=0.0152, **kw)["message"] == "explained by delay"
+
 def test_the_waterfall_starts_from_exactly_zero_at_the_nominal():
     from fonbw.gap.selection import verdict
 

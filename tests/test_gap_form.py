@@ -839,6 +839,7 @@ def test_an_effect_is_material_by_the_same_share_on_either_nominal(core):
 
     d = Diagnosis.__new__(Diagnosis)
     d.sigma2, d.min_gap_closed, d.seed, d.candidates = 0.01, 0.2, 0, []
+    d.val_s, d.coverage = None, []  # no validation record faster than the training ones
     d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], identified=lambda th: True, loro_slack=0.0,
                              refuses=lambda params: None, lag=False)]
     d.edges = StepEdges([], 1e-4, 1.0)  # records without steps
@@ -890,6 +891,7 @@ def test_a_later_effect_is_material_when_it_closes_much_of_what_is_left():
 
     d = Diagnosis.__new__(Diagnosis)
     d.sigma2, d.min_gap_closed, d.seed, d.candidates = 1.0, 0.2, 0, []
+    d.val_s, d.coverage = None, []
     d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], identified=lambda th: True, loro_slack=0.0,
                              refuses=lambda params: None, lag=False)]
     d.edges = StepEdges([], 1e-4, 1.0)  # records without steps
@@ -910,6 +912,79 @@ def test_a_later_effect_is_material_when_it_closes_much_of_what_is_left():
     assert not material(1, 2.0, 2.0 - 0.9)      # 90 % of what is left, but under σ²
     assert material(1, 2.2, 2.2 - 1.05)         # 88 % and 1.05 σ²
 
+
+def test_an_effect_on_the_reference_is_material_on_the_records_within_the_training_rates(monkeypatch):
+    # three validation records of 1000 samples, σ² = 0.01 µm², no noise: the
+    # nominal leaves 0.09 µm² over the floor on records 0 and 2 and 0.9 on the
+    # fast record 1 (whole excess 0.36). The candidate halves the excess of 0
+    # and 2 and adds 0.5 µm² on 1: −0.38 of the whole gap, 0.5 of the gap
+    # within the training rates
+    from types import SimpleNamespace
+
+    from fonbw.gap import checks
+    from fonbw.gap.attribute import Diagnosis
+    from fonbw.gap.edges import StepEdges
+
+    monkeypatch.setattr(checks, "loro", lambda *a: {"ratios": [0.5], "pooled_ratio": 0.5})
+    n, s2 = 1000, 0.01
+    d = Diagnosis.__new__(Diagnosis)
+    d.sigma2, d.min_gap_closed, d.seed, d.candidates = s2, 0.2, 0, []
+    d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], identified=lambda th: True, loro_slack=0.0,
+                             refuses=lambda params: None, lag=False)]
+    d.edges = StepEdges([], 1e-4, 1.0)
+    d._own_bic = lambda *a: -math.inf
+    d.val_s = [SimpleNamespace(y=np.zeros(n), dt=1e-3) for _ in range(3)]
+
+    def preds(*mse):
+        return [np.full(n, math.sqrt(m)) for m in mse]
+
+    p0, pv = preds(0.10, 0.91, 0.10), preds(0.055, 1.41, 0.055)
+    mse0 = checks.mse(d.val_s, p0)
+    d.att = {"core": "reference", "excess": mse0 - s2, "pred": p0, "yref_tr": None,
+             "fitter": SimpleNamespace(y=np.zeros(n), effect_params=lambda fit, eff: {"a": {}})}
+    d.current = {"mse": mse0, "mse_tr": 1e-2, "pred": p0, "fit": None, "eff": []}
+    fit = {"rms": 0.05, "th": [np.zeros(1)]}
+
+    def checked(flags, core="reference"):
+        d.coverage, d.att["core"] = flags, core
+        return d.check_candidate(0, 0, fit, pv, checks.mse(d.val_s, pv), None)
+
+    fast = [{"condition": "rate_p99", "index": 1}, {"condition": "f95", "index": 1}]
+    ch = checked(fast)
+    assert ch["gap_closed_step"] == pytest.approx((0.37 - 1.52 / 3) / 0.36)  # −0.380
+    assert ch["within_training_rates"] == {"records": [0, 2], "gap_closed": pytest.approx(0.5)}
+    assert ch["passed"] and ch["bootstrap"]["p10"] == pytest.approx(0.5)  # every segment closes half
+    # on the FONBW nominal, with no faster record, or with a record only
+    # beyond the training amplitudes, the whole gap is what counts
+    for flags, core in ((fast, "fonbw"), ([], "reference"), ([{"condition": "u_max", "index": 1}], "reference")):
+        ch = checked(flags, core)
+        assert ch["failed"] == "closes too little" and "within_training_rates" not in ch
+    # nor is a lag block: the reference's own rate dependence leaves lags there
+    d.lib[0].lag = True
+    assert checked(fast)["failed"] == "closes too little"
+    d.lib[0].lag = False
+    # ... but a delay is, where the training records' step edges hold a dead
+    # time (6 samples here); as fitted (no delay) the edges refuse it
+    from fonbw import signals
+    from fonbw.gap.effects import Delay
+
+    _, u = signals.step_hold_input((40.0, 100.0, 60.0), hold=1.0, fs=5000.0)
+    d.edges = StepEdges([SimpleNamespace(u=u, y=0.1 * np.r_[np.full(6, u[0]), u[:-6]])], 2e-4, 0.001)
+    assert d.edges.dead_time() is not None
+    d.lib = [Delay(2e-4)]
+    d.att["fitter"].effect_params = lambda fit, eff: {"delay": {"delay": 0.0}}
+    d.coverage = fast
+    ch = d.check_candidate(0, 0, fit, pv, checks.mse(d.val_s, pv), d.lib)
+    assert ch["within_training_rates"]["gap_closed"] == pytest.approx(0.5)
+    assert ch["failed"] == ch["refused"] and "dead time" in ch["refused"]
+    d.edges = StepEdges([], 1e-4, 1.0)
+    assert "within_training_rates" not in d.check_candidate(0, 0, fit, pv, checks.mse(d.val_s, pv), d.lib)
+    d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], identified=lambda th: True, loro_slack=0.0,
+                             refuses=lambda params: None, lag=False)]
+    d.att["fitter"].effect_params = lambda fit, eff: {"a": {}}
+    # closing less than a fifth of their excess is not material there either
+    pv[0][:] = pv[2][:] = math.sqrt(0.1 - 0.017)
+    assert checked(fast)["failed"] == "closes too little"
 
 def _behind_case(form_gc, final_s2=3.0):
     """FONBW named nothing; the reference alone is behind it by `form_gc` of

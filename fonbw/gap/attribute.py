@@ -513,7 +513,7 @@ class Diagnosis(GreedySteps):
             remaining=checks.remaining(self.val_s, self.current["pred"], self.sigma2, self.coverage),
             at_bounds=at_bounds, later_steps=self.later_steps,
             tones=tones(self.val_s, self.current["pred"], self.dt, self.sigma2),
-            step_edges=self.edges.summary())
+            step_edges=self.edges.summary(), within_rates=self.within_rates)
         self.timing["total_s"] = time.perf_counter() - self.t_start
         given = self.model_given
         nominal = {

@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-__all__ = ["CONDITIONS", "AMPLITUDE_TOL", "MIN_DROP", "LATE_SHARE", "LATE_DROP", "BIC_EVIDENCE",
+__all__ = ["CONDITIONS", "RATE_CONDITIONS", "AMPLITUDE_TOL", "MIN_DROP", "LATE_SHARE", "LATE_DROP", "BIC_EVIDENCE",
            "OWN_SHARE", "material", "bic_change", "lacks_evidence", "coverage", "flag_text", "loro_passes", "remaining",
            "mse", "bootstrap", "loro"]
 
@@ -25,6 +25,9 @@ CONDITIONS = {"u_max": ("highest input", "V"), "u_min": ("lowest input", "V"),
               "rate_p99": ("input rate (99th percentile)", "V/s"),
               "f95": ("input bandwidth (95 % of its power)", "Hz"), "hold_s": ("longest hold", "s"),
               "duration_s": ("duration", "s")}
+
+#: The conditions that say a validation record is faster than the training records.
+RATE_CONDITIONS = ("rate_p99", "f95")
 
 
 #: How far [share of the training inputs' span] a validation input may go

@@ -36,7 +36,9 @@ class DiagnosisResult(Mapping):
         ``effects`` (accepted, strongest first: in the order of acceptance), ``gap_closed``,
         ``unexplained``, ``at_noise_floor``, ``steps`` (the waterfall),
         ``coverage``, ``params``, ``later_steps`` (every candidate of each
-        greedy step after the first, with its checks), ``message``.
+        greedy step after the first, with its checks), ``within_training_rates``
+        (accepted effects judged on the validation records within the
+        training records' input rates), ``message``.
     timing : dict
         Wall-clock time of the stages [s].
     records : dict

@@ -85,7 +85,7 @@ def retry_pool(pool, chosen, results, first_step):
 
 def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
             form=None, start=None, remaining=None, at_bounds=None, later_steps=None, tones=None,
-            step_edges=None):
+            step_edges=None, within_rates=None):
     """The verdict of a diagnosis.
 
     Parameters
@@ -131,6 +131,11 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
     step_edges : dict, optional
         What the training records' step edges show
         (:meth:`fonbw.gap.edges.StepEdges.summary`), reported as it is.
+    within_rates : dict, optional
+        The accepted effects that were material only on the validation
+        records within the training records' input rates, by name: those
+        ``records``, the share of their gap the effect closed
+        (``gap_closed``) and its share of the whole gap (``gap_closed_all``).
 
     Returns
     -------
@@ -138,7 +143,8 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         ``effects``, ``gap_closed`` (by form and effects together),
         ``unexplained``, ``at_noise_floor``, ``steps``, ``waterfall``,
         ``form``, ``start``, ``coverage``, ``remaining``, ``params``,
-        ``later_steps``, ``tones``, ``step_edges``, ``message``.
+        ``later_steps``, ``tones``, ``step_edges``, ``within_training_rates``,
+        ``message``.
     """
     total = (mse0 - mse) / excess0 if excess0 > 0 and not at_floor else 0.0
     # the waterfall counts from the nominal's RMS as it reports it, so that the
@@ -172,6 +178,7 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         "later_steps": list(later_steps or []),
         "tones": list(tones or []),
         "step_edges": step_edges,
+        "within_training_rates": dict(within_rates or {}),
     }
     named = (["the hysteresis form"] if form_named else []) + out["effects"]
     if at_floor:
@@ -182,6 +189,11 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         out["message"] = f"partly explained by {', '.join(named)}; most of the gap is unexplained"
     else:
         out["message"] = f"explained by {', '.join(named)}"
+    for name, w in out["within_training_rates"].items():
+        out["message"] += (f"; {name} closes {w['gap_closed']:.2f} of the gap on the validation records within "
+                           f"the training records' input rates ({', '.join(w['records'])}) and "
+                           f"{w['gap_closed_all']:.2f} on all: the faster ones, where the models extrapolate, "
+                           "do not show it")
     if not at_floor and total < 0.9:
         out["message"] += _left_text(out["remaining"], at_bounds, out["unexplained"]) + _tone_text(out["tones"])
     if start and start.get("mid_drive"):
