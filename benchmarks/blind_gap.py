@@ -173,7 +173,7 @@ def _verdict(res):
             "candidates": [{k: c.get(k) for k in ("effect", "gap_closed", "accepted", "checks", "params")}
                            for c in d.get("candidates", [])],
             "later_steps": v.get("later_steps", []), "tones": v.get("tones", []),
-            "step_edges": v.get("step_edges"),
+            "step_edges": v.get("step_edges"), "within_training_rates": v.get("within_training_rates"),
             "effect_params": v.get("params"), "remaining": v.get("remaining"), "at_bounds": nom.get("at_bounds")}
 
 

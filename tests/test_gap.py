@@ -512,6 +512,9 @@ def test_the_verdict_says_which_effect_was_judged_within_the_training_rates():
                             "where the models extrapolate, do not show it")
     assert verdict(["delay"], mse=0.0152, **kw)["within_training_rates"] == {}
     assert verdict(["delay"], mse=0.0152, **kw)["message"] == "explained by delay"
+    # at the noise floor nothing is named, nor said of it
+    floor = verdict(["delay"], mse=0.0152, within_rates=w, **{**kw, "at_floor": True})
+    assert floor["effects"] == [] and "delay" not in floor["message"]
 
 def test_the_waterfall_starts_from_exactly_zero_at_the_nominal():
     from fonbw.gap.selection import verdict
@@ -949,6 +952,13 @@ def test_the_report_says_what_became_of_each_candidate():
     assert _outcome({"accepted": False, "checks": {"passed": False, "failed": "bootstrap 10th percentile -0.04"}}) == \
         "no: bootstrap 10th percentile -0.04"
     assert _outcome({"accepted": False, "checks": {"passed": True, "failed": None}}) == "no: passed, another was added"
+    # a candidate judged within the training rates shows both shares
+    from fonbw.gap.report import _candidate_row
+    row = _candidate_row({"effect": "delay", "gap_closed": -0.333, "rms_validate": 0.12, "params": {},
+                          "accepted": True, "checks": {"passed": True, "failed": None, "delta_bic": -8.4e4,
+                                                       "within_training_rates": {"records": [0, 3],
+                                                                                 "gap_closed": 0.809}}})
+    assert "<td>-0.333 (0.809 within the training rates)</td>" in row
 
 
 def test_result_object_reads_as_its_json():

@@ -265,6 +265,17 @@ def test_the_delays_searched_are_those_within_the_dead_time_the_edges_accept():
     assert 7.0 - need - 0.05 - 1e-9 < hi / DT <= 7.0 - need
     # no dead time, nothing to search
     assert StepEdges(_records(_viscous_core), DT, sigma=0.001).delays_within_dead_time(Delay(DT)) is None
+    # the delays are judged with the lags accepted before: beside a 1-kHz
+    # amplifier the pair lets less through by the jump's sample, and the
+    # longest delays go (4.00-6.65 samples against 4.25-6.75 alone); a
+    # 100-Hz one leaves none
+    lo2, hi2 = e.delays_within_dead_time(Delay(DT), [Amplifier(DT, 100.0)], [np.array([1000.0, 1e9])])
+    assert hi2 < hi - 0.05 * DT and lo2 != lo
+    assert e.delays_within_dead_time(Delay(DT), [Amplifier(DT, 100.0)], [np.array([100.0, 1e9])]) is None
+    # a single accepted delay is searched half a grid step either side
+    one = StepEdges(_records(_delayed(6)), DT, sigma=0.001)
+    one.refuses = lambda blocks, ths: None if abs(ths[-1][0] / DT - 5.5) < 0.01 else "no"
+    np.testing.assert_allclose(np.array(one.delays_within_dead_time(Delay(DT))) / DT, (5.475, 5.525), rtol=1e-9)
 
 
 def test_a_delay_block_is_searched_where_the_edges_allow():
@@ -303,7 +314,7 @@ def test_a_delay_the_edges_refuse_is_searched_again_within_their_dead_time():
 
     me = SimpleNamespace(lib=[amp, delay], edges=edges_, refit_candidate=refit_candidate,
                          check_candidate=check_candidate)
-    cur = {"idx": [], "fit": None, "eff": []}
+    cur = {"idx": [], "fit": {"th": []}, "eff": []}
     fit, _, _, out, block = GreedySteps.refit_and_check(me, 1, 0, cur)
     lo, hi = edges_.delays_within_dead_time(delay)
     assert 4.0 * DT < lo < 5.0 * DT and 6.0 * DT < hi < 7.0 * DT

@@ -959,6 +959,11 @@ def test_an_effect_on_the_reference_is_material_on_the_records_within_the_traini
     for flags, core in ((fast, "fonbw"), ([], "reference"), ([{"condition": "u_max", "index": 1}], "reference")):
         ch = checked(flags, core)
         assert ch["failed"] == "closes too little" and "within_training_rates" not in ch
+    # nor a refit that diverges on the fast record
+    inf = [pv[0], np.full(n, np.inf), pv[2]]
+    ch = d.check_candidate(0, 0, fit, inf, checks.mse(d.val_s, inf), None)
+    assert ch["gap_closed_step"] is None and ch["failed"] == "closes too little"
+    assert "within_training_rates" not in ch
     # nor is a lag block: the reference's own rate dependence leaves lags there
     d.lib[0].lag = True
     assert checked(fast)["failed"] == "closes too little"

@@ -224,11 +224,13 @@ class StepEdges:
         first = [j for (_, j), jump in zip(held, jumps) if jump >= DEAD_JUMP]
         return max(0, min(first) - 1 - LATE) * self.dt, (max(first) + 1) * self.dt
 
-    def delays_within_dead_time(self, block, step=0.05):
+    def delays_within_dead_time(self, block, others=(), other_ths=(), step=0.05):
         """(shortest, longest) delay [s] of `block` (a lag whose one parameter
-        is a delay in s) that the edges accept on its own (:meth:`refuses`),
-        the longest such run on a grid of `step` samples across
-        :meth:`dead_time`; None without a dead time or when they accept none.
+        is a delay in s) that the edges accept beside the blocks `others` at
+        `other_ths` (:meth:`refuses`; the effects accepted before it), the
+        longest such run on a grid of `step` samples across :meth:`dead_time`,
+        half a step either side when it is a single point; None without a
+        dead time or when they accept none.
 
         :meth:`dead_time` brackets the edges' onsets one by one, the test
         takes their median: on a rate-dependent core behind a 14.6-sample
@@ -240,14 +242,18 @@ class StepEdges:
         if dead is None:
             return None
         d = np.arange(dead[0], dead[1] + 0.5 * step * self.dt, step * self.dt)
-        ok = np.array([self.refuses([block], [np.array([x])]) is None for x in d])
+        blocks, ths = list(others) + [block], list(other_ths)
+        ok = np.array([self.refuses(blocks, ths + [np.array([x])]) is None for x in d])
         if not ok.any():
             return None
         # the longest run of accepted delays
         edges = np.diff(np.concatenate(([0], ok.astype(np.int8), [0])))
         starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
         k = int(np.argmax(ends - starts))
-        return float(d[starts[k]]), float(d[ends[k] - 1])
+        lo, hi = float(d[starts[k]]), float(d[ends[k] - 1])
+        if lo == hi:  # a range the block can be searched over
+            lo, hi = lo - 0.5 * step * self.dt, hi + 0.5 * step * self.dt
+        return lo, hi
 
     def summary(self):
         """The edges for a report: ``count``; ``moved`` (median share of its

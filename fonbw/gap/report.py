@@ -137,7 +137,9 @@ def _candidate_row(c):
     lo = (ch.get("loro") or {}).get("ratios")
     params = ", ".join(f"{k}={val:.4g}" for k, val in c["params"].items())
     gc, rms = c["gap_closed"], c["rms_validate"]
-    return (f"<tr><td>{esc(c['effect'])}</td><td>{'–' if gc is None else f'{gc:.3f}'}</td>"
+    w = ch.get("within_training_rates")
+    within = "" if w is None else f" ({w['gap_closed']:.3f} within the training rates)"
+    return (f"<tr><td>{esc(c['effect'])}</td><td>{'–' if gc is None else f'{gc:.3f}'}{within}</td>"
             f"<td>{'–' if rms is None else f'{rms:.4g}'}</td>"
             f"<td>{ch.get('delta_bic', math.nan):.4g}</td><td>{ch.get('own_bic', math.nan):.4g}</td>"
             f"<td>{bs.get('p10', math.nan):.3f}</td>"

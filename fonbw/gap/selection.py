@@ -135,7 +135,10 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         The accepted effects that were material only on the validation
         records within the training records' input rates, by name: those
         ``records``, the share of their gap the effect closed
-        (``gap_closed``) and its share of the whole gap (``gap_closed_all``).
+        (``gap_closed``) and its share of the whole gap (``gap_closed_all``),
+        both as measured at the greedy step that accepted it, on the
+        reference nominal (also when a form revoked later leaves the final
+        configuration FONBW's).
 
     Returns
     -------
@@ -189,7 +192,7 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         out["message"] = f"partly explained by {', '.join(named)}; most of the gap is unexplained"
     else:
         out["message"] = f"explained by {', '.join(named)}"
-    for name, w in out["within_training_rates"].items():
+    for name, w in ({} if at_floor else out["within_training_rates"]).items():
         out["message"] += (f"; {name} closes {w['gap_closed']:.2f} of the gap on the validation records within "
                            f"the training records' input rates ({', '.join(w['records'])}) and "
                            f"{w['gap_closed_all']:.2f} on all: the faster ones, where the models extrapolate, "
