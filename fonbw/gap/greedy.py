@@ -165,6 +165,7 @@ class GreedySteps:
         idx = [j for j in range(len(self.val_s)) if j not in fast] if fast else []
         if not idx:
             return None
+
         def on(preds):
             return checks.mse([self.val_s[j] for j in idx], [preds[j] for j in idx])
         before, excess = on(self.current["pred"]), on(self.att["pred"]) - self.sigma2
