@@ -336,6 +336,57 @@ def test_a_delay_the_edges_refuse_is_searched_again_within_their_dead_time():
     assert block is delay and len(searched) == 1 and out["refused"] is not None
 
 
+def test_a_delay_searched_again_is_the_block_the_later_steps_refit():
+    # the greedy stage end to end, its refits and checks stood in for: the
+    # first step refits the delay two samples short of the 6-sample dead
+    # time, the edges refuse it, and the refit over the delays they accept is
+    # named; the second step refits the amplifier beside that narrowed delay,
+    # which the library now holds in the delay's place (a 2-kHz amplifier the
+    # edges refuse alone and accept behind the delay)
+    from fonbw.gap.greedy import GreedySteps
+
+    amp, delay = Amplifier(DT, 100.0), Delay(DT)
+    given = []  # the delay blocks each refit is given, by step
+
+    class Steps(GreedySteps):
+        def map(self, fn, items, on_result=None):
+            out = [fn(x) for x in items]
+            for j, r in enumerate(out):
+                on_result(j, r)
+            return out
+
+        def refit_candidate(self, active, start, att=None, lib=None):
+            eff = [(self.lib if lib is None else lib)[i] for i in active]
+            given.append([b for b in eff if b.name == "delay"])
+            ths = [np.array([2000.0, 1e9]) if b.name == "amplifier"
+                   else np.array([(4.0 if b.bounds[0][0] == 0.0 else 6.0) * DT]) for b in eff]
+            return {"th": ths, "rms": 0.01}, None, 0.002 if eff[-1].name == "delay" else 0.005
+
+        def check_candidate(self, i, step, fit, pv, mse, eff):
+            refused = self.edges.refuses(eff, fit["th"])
+            return {"gap_closed_step": 0.5, "delta_bic": -100.0, "refused": refused, "passed": refused is None,
+                    "failed": refused, "identified": True}
+
+    me = Steps()
+    me.lib = [amp, delay]
+    me.rs = SimpleNamespace(raw={"train": _records(_delayed(6))})
+    me.dt, me.sigma2, me.mse0, me.max_effects, me.floor_tol, me.tie_margin = DT, 1e-6, 0.01, 3, 0.2, math.inf
+    me.att = {"base": {"rms": 0.1, "th": []}, "mse": 0.01, "pred": None, "core": "fonbw",
+              "fitter": SimpleNamespace(effect_params=lambda fit, eff: {b.name: {} for b in eff})}
+    me.timing, me.say = {}, lambda *a: None
+    me.attribute()
+    lo, hi = me.edges.delays_within_dead_time(delay)
+    narrowed = me.lib[1]
+    assert me.accepted == ["delay", "amplifier"] and narrowed is not delay and narrowed.bounds == [(lo, hi)]
+    assert me.current["eff"] == [narrowed, amp] and me.current["fit"]["th"][0][0] == 6.0 * DT
+    # step 1: the amplifier alone, the delay, the delay narrowed; step 2: the
+    # amplifier beside the narrowed delay
+    assert [len(g) for g in given] == [0, 1, 1, 1]
+    assert given[1][0] is delay and given[2][0].bounds == [(lo, hi)] and given[3][0] is narrowed
+    assert "dead time" in me.candidates[0]["checks"]["refused"]
+    assert me.candidates[1]["checks"]["searched_within_s"] == [lo, hi]
+    assert me.later_steps[0]["on_top_of"] == ["delay"] and me.later_steps[0]["accepted"] == "amplifier"
+
 def test_the_report_gives_the_edges_and_their_dead_time():
     a = math.exp(-DT / 0.01)
     first = (0.4 + 0.6 * (1.0 - a)) / (0.4 + 0.6 * (1.0 - a ** (SETTLE + 1)))
