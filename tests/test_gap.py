@@ -391,6 +391,15 @@ def test_coverage_flags_a_hold_longer_than_the_trainings():
     assert holds(held(6000, 10), held(6000, 260)) == [("hold_s", 10 * DT, 260 * DT)]
 
 
+def test_the_longest_run_is_found_by_its_ends():
+    from fonbw.gap.checks import longest_run
+
+    assert longest_run(np.array([0, 1, 1, 0, 1, 1, 1, 0], dtype=bool)) == (4, 7)
+    assert longest_run(np.array([1, 1, 0, 1, 1], dtype=bool)) == (0, 2)  # the first of equals
+    assert longest_run(np.array([0, 1, 1, 1], dtype=bool)) == (1, 4)     # a run to the end
+    assert longest_run(np.zeros(5, dtype=bool)) == (0, 0) and longest_run(np.zeros(0, dtype=bool)) == (0, 0)
+
+
 def test_coverage_flags_inputs_past_the_training_range_by_its_span():
     t = np.arange(10000) * DT
     zero = np.zeros(t.size)

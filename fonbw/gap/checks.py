@@ -16,8 +16,8 @@ import math
 import numpy as np
 
 __all__ = ["CONDITIONS", "RATE_CONDITIONS", "AMPLITUDE_TOL", "MIN_DROP", "LATE_SHARE", "LATE_DROP", "BIC_EVIDENCE",
-           "OWN_SHARE", "material", "bic_change", "lacks_evidence", "coverage", "flag_text", "loro_passes", "remaining",
-           "mse", "bootstrap", "loro"]
+           "OWN_SHARE", "material", "bic_change", "lacks_evidence", "coverage", "longest_run", "flag_text",
+           "loro_passes", "remaining", "mse", "bootstrap", "loro"]
 
 
 #: What each :func:`coverage` condition measures, and its unit.
@@ -155,7 +155,8 @@ def coverage(train, validate, dt):
         u = r.u
         du = np.abs(np.diff(u))
         rate = du / dt
-        hold = _longest_run(du <= 1e-6 * max(np.ptp(u), 1e-9))
+        start, stop = longest_run(du <= 1e-6 * max(np.ptp(u), 1e-9))
+        hold = stop - start
         U = np.fft.rfft(u - u.mean())
         f = np.fft.rfftfreq(len(u), dt)
         p = np.abs(U) ** 2
@@ -187,11 +188,15 @@ def coverage(train, validate, dt):
     return flags
 
 
-def _longest_run(steady):
-    """Length of the longest run of True in the boolean array `steady` (0 if none)."""
-    edges = np.diff(np.concatenate(([0], steady.astype(np.int8), [0])))
+def longest_run(mask):
+    """(start, stop) indices of the longest run of True in the boolean array
+    `mask`, the first of equal runs; (0, 0) when there is none."""
+    edges = np.diff(np.concatenate(([0], mask.astype(np.int8), [0])))
     starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-    return int((ends - starts).max()) if starts.size else 0
+    if not starts.size:
+        return 0, 0
+    k = int(np.argmax(ends - starts))
+    return int(starts[k]), int(ends[k])
 
 
 def flag_text(flag):

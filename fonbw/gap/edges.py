@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .checks import longest_run
+
 __all__ = ["StepEdges", "RATIO", "MARGIN", "summary_text"]
 
 #: How many times the share a lag block passes within the step's sample the
@@ -246,11 +248,8 @@ class StepEdges:
         ok = np.array([self.refuses(blocks, ths + [np.array([x])]) is None for x in d])
         if not ok.any():
             return None
-        # the longest run of accepted delays
-        edges = np.diff(np.concatenate(([0], ok.astype(np.int8), [0])))
-        starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-        k = int(np.argmax(ends - starts))
-        lo, hi = float(d[starts[k]]), float(d[ends[k] - 1])
+        start, stop = longest_run(ok)
+        lo, hi = float(d[start]), float(d[stop - 1])
         if lo == hi:  # a range the block can be searched over
             lo, hi = lo - 0.5 * step * self.dt, hi + 0.5 * step * self.dt
         return lo, hi
