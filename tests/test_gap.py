@@ -1172,6 +1172,60 @@ def test_a_saturation_that_only_bends_the_top_of_the_loop_is_refused(monkeypatch
     assert checked(1, -0.9)["passed"]  # a stop beside the other effect is one
 
 
+def test_a_saturation_refused_as_a_bend_is_judged_again_when_a_rail_passes_and_closes_less(monkeypatch):
+    # the stroke limit of blind-harness seed 41009 (a Prandtl-Ishlinskii
+    # core): its block dropped the slope by 56 % and closed 0.94 of the gap,
+    # the rail passed with 0.89 and was named in its place
+    from types import SimpleNamespace
+
+    from fonbw.gap import checks
+    from fonbw.gap.attribute import Diagnosis
+    from fonbw.gap.edges import StepEdges
+    from fonbw.gap.effects import Clip, Saturation
+
+    monkeypatch.setattr(checks, "bootstrap", lambda *a: {"p05": 0.2, "p10": 0.3, "p50": 0.4})
+    monkeypatch.setattr(checks, "loro", lambda *a: {"ratios": [0.5], "pooled_ratio": 0.5})
+    sat, clip = Saturation(0.0, 20.0), Clip(120.0)
+    assert sat.overruled_by == "clip" and clip.overruled_by is None
+    params = {"saturation": {"knee": 9.96, "width": 1.76, "c": -0.56}, "clip": {"level": 104.0, "knee": 1.8}}
+    said = []
+    me = SimpleNamespace(current={"mse": 0.02, "mse_tr": 0.01, "pred": None, "fit": None, "eff": []},
+                         lib=[sat, clip], sigma2=0.001, min_gap_closed=0.2, val_s=None, seed=0, candidates=[],
+                         edges=StepEdges([], 1e-4, 1.0), _own_bic=lambda *a: -math.inf, say=said.append,
+                         att={"excess": 0.019, "yref_tr": None, "core": "reference", "fitter": SimpleNamespace(
+                             y=np.zeros(10_000), effect_params=lambda fit, eff: params)})
+    me.check_candidate = lambda *a, **k: Diagnosis.check_candidate(me, *a, **k)
+
+    def step(gc_sat, gc_clip, clip_passes=True):
+        said.clear()
+        out = []
+        for i, gc in ((0, gc_sat), (1, gc_clip)):
+            mse = 0.02 - gc * 0.019
+            fit = {"rms": 0.05 if i == 0 or clip_passes else 0.2, "th": [np.zeros(2)]}
+            out.append({"i": i, "fit": fit, "pv": None, "mse": mse, "eff": [me.lib[i]],
+                        "checks": me.check_candidate(i, 0, fit, None, mse, [me.lib[i]])})
+        Diagnosis._overrule(me, 0, out)
+        return [r["checks"] for r in out]
+
+    s, c = step(0.94, 0.89)
+    assert c["passed"] and s["passed"] and s["refused"] is None
+    assert s["overruled"].startswith("the slope above the knee drops by 56%")
+    assert s["gap_closed_step"] == pytest.approx(0.94) and s["bootstrap"]["p10"] == 0.3
+    assert said == ['step 1: +saturation closes more than +clip, which passes: judged again without '
+                    '"the slope above the knee drops by 56%, less than a stroke limit\'s 67%: a bend of the '
+                    'loop", passes']
+    # the rail closes more (a rail, seeds 33001 and 42015): the bend stays refused
+    s, c = step(0.69, 0.998)
+    assert c["passed"] and not s["passed"] and "overruled" not in s and said == []
+    # the rail fails (its ΔBIC > 0: no flat top in the records): refused
+    s, c = step(0.94, 0.2, clip_passes=False)
+    assert not c["passed"] and not s["passed"] and s["refused"].startswith("the slope above") and said == []
+    # a saturation that is a stop passes on its own and is left as it was
+    params["saturation"]["c"] = -0.9
+    s, c = step(0.94, 0.89)
+    assert s["passed"] and "overruled" not in s and said == []
+
+
 def test_nominal_of_a_set_with_a_mid_drive_record_is_identified_on_the_records_at_rest():
     # a FONBW core whose eq.-19 training record is cut mid-drive at 3.5 s (the
     # other two start at rest and sweep 0-104 V): the identification leaves the

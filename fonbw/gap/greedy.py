@@ -79,11 +79,13 @@ class GreedySteps:
         x1, th1 = (fc["x"], fc["th"]) if c_c <= c_s else (np.asarray(start["x"]), th_s)
         return fitter.refit(eff, x1, th1, yref_tr, evals=self.refit_evals, seed=seed)
 
-    def check_candidate(self, i, step, fit, pv, mse, eff):
+    def check_candidate(self, i, step, fit, pv, mse, eff, overruled=False):
         """The checks of library effect `i` added at greedy `step` (0-based).
 
         `fit`, `pv`, `mse` are its refit, validation predictions and MSE,
-        `eff` the effect list it was fitted with. Returns the ``checks`` dict:
+        `eff` the effect list it was fitted with; `overruled`: the block's own
+        refusal is set aside (:meth:`_overrule`) and kept as ``overruled``.
+        Returns the ``checks`` dict:
         ``gap_closed_step``, ``delta_bic`` and ``own_bic`` (training records;
         :func:`fonbw.gap.checks.lacks_evidence`), ``material``, ``refused``
         (why the fitted block is not its own effect, or None: the block's own
@@ -111,6 +113,8 @@ class GreedySteps:
                "material": checks.material(step, gc, drop, cur["mse"] - sigma2, sigma2, self.min_gap_closed),
                "refused": _refused(lib[i], step, self.att["fitter"].effect_params(fit, eff)[lib[i].name],
                                    self.candidates)}
+        if overruled:
+            out["overruled"], out["refused"] = out["refused"], None
         # a refit that diverges on a faster record is not judged without it
         within = None if out["material"] or not math.isfinite(gc) else self._within_rates(step, pv, lib[i])
         if within is not None:
@@ -139,7 +143,7 @@ class GreedySteps:
         0.27-0.39 of those records' gap on three rate-dependent cores without
         one (seeds 35029, 39022, 40002); a dead time is what no such core
         holds, and a delay searched within it is the edges' own reading."""
-        return not block.lag or (hasattr(block, "within") and self.edges.dead_time() is not None)
+        return not block.lag or (block.dead_time and self.edges.dead_time() is not None)
 
     def _within_rates(self, step, pv, block):
         """The candidate `block` with validation predictions `pv` judged on the
@@ -215,6 +219,27 @@ class GreedySteps:
         return [{"i": i, "fit": by_i[i][0], "pv": by_i[i][1], "mse": by_i[i][2], "eff": cur["eff"] + [by_i[i][4]],
                  "checks": by_i[i][3]} for i in pool]
 
+    def _overrule(self, step, results):
+        """Check again, without its own refusal, each candidate of a greedy
+        step's `results` that its :attr:`~fonbw.gap.effects.Effect.overruled_by`
+        block overrules: that block passed and closed less of the gap. The
+        refusal said the fit imitates something else (a stroke limit that
+        only bends the top: the loop's envelope); a passing rival says the
+        records hold what both blocks express, and the two then compete on
+        their fits (:func:`fonbw.gap.selection.pick_best`)."""
+        by_name = {self.lib[r["i"]].name: r for r in results}
+        for r in results:
+            block, ch = self.lib[r["i"]], r["checks"]
+            rival = by_name.get(block.overruled_by)
+            if (rival is None or not rival["checks"]["passed"] or ch.get("refused") is None
+                    or block.refuses(self.att["fitter"].effect_params(r["fit"], r["eff"])[block.name]) is None
+                    or not (ch["gap_closed_step"] or -math.inf) > rival["checks"]["gap_closed_step"]):
+                continue
+            r["checks"] = self.check_candidate(r["i"], step, r["fit"], r["pv"], r["mse"], r["eff"], overruled=True)
+            verdict = "passes" if r["checks"]["passed"] else f"fails: {r['checks']['failed']}"
+            self.say(f"step {step + 1}: +{block.name} closes more than +{block.overruled_by}, which passes: "
+                     f"judged again without \"{r['checks']['overruled']}\", {verdict}")
+
     def refit_and_check(self, i, step, cur):
         """Refit library effect `i` on top of the configuration `cur` and check it
         (:meth:`refit_candidate`, :meth:`check_candidate`). A block that can be
@@ -228,7 +253,7 @@ class GreedySteps:
         fit, pv, mse = self.refit_candidate(cur["idx"] + [i], cur["fit"])
         out = self.check_candidate(i, step, fit, pv, mse, cur["eff"] + [block])
         dead = (self.edges.delays_within_dead_time(block, cur["eff"], cur["fit"]["th"])
-                if out["refused"] is not None and hasattr(block, "within") else None)
+                if out["refused"] is not None and block.dead_time else None)
         narrowed = None if dead is None else block.within(*dead)
         if narrowed is None:
             return fit, pv, mse, out, block
@@ -290,6 +315,7 @@ class GreedySteps:
             if self.current["mse"] <= (1.0 + self.floor_tol) * self.sigma2 or not pool:
                 break
             results = self.try_candidates(step, pool, t0)
+            self._overrule(step, results)
             self._record_step(step, results)
             best = selection.pick_best(results, self.tie_margin)
             if best is None:
