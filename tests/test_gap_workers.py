@@ -91,9 +91,12 @@ def test_no_workers_in_a_daemonic_process(monkeypatch):
 
 def test_a_diagnosis_on_workers_equals_the_one_in_process(monkeypatch):
     # one BLAS thread here (tests/conftest.py) and in the workers: the same
-    # sums in the same order, so the same numbers to the last bit
+    # sums in the same order, so the same numbers to the last bit; with 15
+    # refit evaluations the amplifier ends short of its fit (it leaves 0.134
+    # of the nominal's misfit at the step edges and is refused), with 30 it
+    # leaves 0.065
     _, train, val = tr.fixed_case(12, AMPLIFIER, scale=0.15)
-    kw = dict(seed=4, budget=150, global_evals=40, refit_evals=15, effects=("creep", "amplifier", "delay"))
+    kw = dict(seed=4, budget=150, global_evals=40, refit_evals=30, effects=("creep", "amplifier", "delay"))
     started = []
     real = workers._Worker.__init__
     monkeypatch.setattr(workers._Worker, "__init__", lambda self, *a: (started.append(1), real(self, *a))[1])

@@ -89,6 +89,10 @@ class Effect:
     search_seeds : int
         Seeds the block's refit on the FONBW nominal runs from (search and
         polish each; the best training fit at the full rate is kept).
+    explains_edges : bool
+        The block is a lag that the step edges show whole: its fit must take
+        nearly all of the nominal's misfit there
+        (:meth:`fonbw.gap.edges.StepEdges.left`).
     dead_time : bool
         The block is a dead time: when the step edges refuse its fit, it is
         searched again over the delays they accept (``within(lo, hi)``), and
@@ -109,6 +113,7 @@ class Effect:
     c_min = -math.inf
     lin_nonneg = False
     lag = False
+    explains_edges = False
     dead_time = False
     search_seeds = 1
     #: How far above 1 the pooled leave-one-record-out ratio may lie
@@ -367,6 +372,7 @@ class Amplifier(Effect):
     units = {"f_c": "Hz", "slew": "V/s"}
     input_side = True
     lag = True
+    explains_edges = True
     # The global search sees decimated records, where the slew limit hardly
     # shows, so the valley the full-rate polish ends in depends on the
     # search's draw: on a FONBW core with an amplifier (blind harness, seed

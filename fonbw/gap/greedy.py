@@ -90,7 +90,9 @@ class GreedySteps:
         :func:`fonbw.gap.checks.lacks_evidence`), ``material``, ``refused``
         (why the fitted block is not its own effect, or None: the block's own
         judgement, and for a lag the training records' step edges,
-        :mod:`fonbw.gap.edges`), ``within_training_rates`` (when it is
+        :mod:`fonbw.gap.edges`; for an amplifier also the share of the
+        nominal's misfit at the edges it leaves, ``edges_left``:
+        :meth:`_edges_left`), ``within_training_rates`` (when it is
         material only on the validation records within the training input
         rates, :meth:`_within_rates`; the bootstrap then resamples those),
         ``bootstrap`` and ``loro`` (only when material with the training
@@ -123,6 +125,8 @@ class GreedySteps:
             # the new lag with those accepted before it; a block that is no lag
             # is not blamed for where the joint refit moved an accepted one
             out["refused"] = self.edges.refuses(eff, fit["th"])
+        if out["refused"] is None and out["material"] and lib[i].explains_edges:
+            out["refused"], out["edges_left"] = self._edges_left(fit, eff)
         if out["material"] and checks.lacks_evidence(dbic, out["own_bic"]) is None and out["refused"] is None:
             # resampled on the records that made it material
             scored = (self.val_s, cur["pred"], pv)
@@ -134,6 +138,24 @@ class GreedySteps:
         out["passed"], out["failed"] = failed is None, failed
         out["identified"] = bool(lib[i].identified(fit["th"][-1]))
         return out
+
+    def _residuals_tr(self, fit, eff):
+        """Residuals [µm] of a fitted configuration on the training records as
+        the fitter holds them, end to end, and the records' lengths."""
+        f = self.att["fitter"]
+        pred = f.predict(f.records, fit, eff, self.att["yref_tr"])
+        return np.concatenate([r.y - p for r, p in zip(f.records, pred)]), [len(r.y) for r in f.records]
+
+    def _edges_left(self, fit, eff):
+        """:meth:`fonbw.gap.edges.StepEdges.left` for the refit `fit` of
+        effects `eff` against the attribution's nominal: (why refused or
+        None, share of the nominal's misfit at the edges left or None)."""
+        if not len(self.edges):
+            return None, None
+        if "residuals_tr" not in self.att:  # the nominal's, once per attribution context
+            self.att["residuals_tr"] = self._residuals_tr(self.att["base"], [])
+        (before, lengths), (after, _) = self.att["residuals_tr"], self._residuals_tr(fit, eff)
+        return self.edges.left(before, after, lengths, self.att["fitter"].keep)
 
     def _judged_within_rates(self, block):
         """Whether `block` may be judged on the records within the training

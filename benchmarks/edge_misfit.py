@@ -1,0 +1,90 @@
+"""How much of the nominal's misfit at the step edges each lag candidate leaves.
+
+For every given blind-harness seed the scenario is drawn again and diagnosed
+up to its first greedy step (the nominal, the form, every lag candidate refit
+on the better nominal). Printed per seed: the nominal's mean square error
+within the step edges' windows against elsewhere (the training records, in
+noise variances), and for each lag candidate the share of the windows'
+misfit its refit leaves, with its gap closed and how its checks end
+(:meth:`fonbw.gap.edges.StepEdges.left`, which refuses an amplifier that
+leaves more than :data:`fonbw.gap.edges.LEFT` where the edges' misfit is
+their own, :data:`fonbw.gap.edges.OWN_MISFIT`).
+
+Usage::
+
+    python benchmarks/edge_misfit.py SEED [SEED ...]
+
+One process per seed is the caller's choice (``xargs -P 2``); each takes
+about as long as a diagnosis's first step (30-60 s).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from blind_gap import DEFAULTS  # noqa: E402
+from gap_cores import FAMILIES  # noqa: E402
+from gap_truth import draw_scenario, scenario_family  # noqa: E402
+
+from fonbw.gap.attribute import Diagnosis  # noqa: E402
+from fonbw.gap.edges import StepEdges  # noqa: E402
+from fonbw.gap.workers import Pool  # noqa: E402
+
+LAGS = ("amplifier", "delay", "dynamics")
+
+
+def first_step(seed):
+    """The diagnosis of blind-harness `seed` after its first greedy step's
+    lag candidates: (diagnosis, scenario, candidate results)."""
+    fam = scenario_family(seed, tuple(FAMILIES))
+    sc = draw_scenario(seed, scale=DEFAULTS["scale"], family=fam, mid_drive=DEFAULTS["mid_drive"])
+    d = Diagnosis(sc["train"], sc["validate"], seed=seed, budget=1000, workers=1, progress=False)
+    with Pool(1).start() as d.pool:
+        d.fit_nominal()
+        d.localize_residual()
+        d.form_stage()
+        a = d.att
+        d.current = {"fit": a["base"], "eff": [], "idx": [], "mse": a["mse"], "mse_tr": a["base"]["rms"] ** 2,
+                     "pred": a["pred"]}
+        d.candidates, d.accepted, d.later_steps, d.within_rates = [], [], [], {}
+        d.edges = StepEdges(d.rs.raw["train"], d.dt, math.sqrt(d.sigma2))
+        pool = [i for i, b in enumerate(d.lib) if b.name in LAGS]
+        res = d.try_candidates(0, pool, time.perf_counter())
+    return d, sc, res
+
+
+def report(seed):
+    d, sc, res = first_step(seed)
+    injected = {k: round(v["magnitude"], 1) for k, v in sc["injected"].items()}
+    before, lengths = d._residuals_tr(d.att["base"], [])
+    win, keep = d.edges.windows(lengths), d.att["fitter"].keep
+    keep = np.ones(win.size, dtype=bool) if keep is None else keep
+    s2 = d.sigma2
+    b_in = float((before[win & keep] ** 2).mean()) / s2 if (win & keep).any() else math.nan
+    b_out = float((before[~win & keep] ** 2).mean()) / s2
+    print(f"{seed} {sc['family']} {sc['kind']} {injected} on {d.att['core']}: {len(d.edges)} edges, "
+          f"nominal misfit {b_in:.1f} σ² within their windows, {b_out:.2f} σ² elsewhere")
+    for r in res:
+        after, _ = d._residuals_tr(r["fit"], r["eff"])
+        left = float((after[win & keep] ** 2).mean()) / s2 / b_in if b_in > 0 else math.nan
+        ch = r["checks"]
+        print(f"    {d.lib[r['i']].name:9s} gap closed {ch['gap_closed_step']:.3f}, leaves {left:.3f} "
+              f"at the edges: {'passes' if ch['passed'] else ch['failed']}")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("seeds", type=int, nargs="+")
+    for seed in ap.parse_args(argv).seeds:
+        report(seed)
+
+
+if __name__ == "__main__":
+    main()
