@@ -63,8 +63,10 @@ def first_step(seed):
 def report(seed):
     d, sc, res = first_step(seed)
     injected = {k: round(v["magnitude"], 1) for k, v in sc["injected"].items()}
-    before, lengths = d._residuals_tr(d.att["base"], [])
-    win, keep = d.edges.windows(lengths), d.att["fitter"].keep
+    recs, keep = d.att["fitter"].records, d.att["fitter"].keep
+    before = np.concatenate([r.y - p for r, p in zip(recs, d.att["yref_tr"])])
+    lengths = [len(r.y) for r in recs]
+    win = d.edges.windows(lengths)
     keep = np.ones(win.size, dtype=bool) if keep is None else keep
     s2 = d.sigma2
     b_in = float((before[win & keep] ** 2).mean()) / s2 if (win & keep).any() else math.nan
@@ -73,10 +75,12 @@ def report(seed):
           f"nominal misfit {b_in:.1f} σ² within their windows, {b_out:.2f} σ² elsewhere")
     for r in res:
         after, _ = d._residuals_tr(r["fit"], r["eff"])
-        left = float((after[win & keep] ** 2).mean()) / s2 / b_in if b_in > 0 else math.nan
+        share = d.edges.left(before, after, lengths, d.att["fitter"].keep)[1]
         ch = r["checks"]
-        print(f"    {d.lib[r['i']].name:9s} gap closed {ch['gap_closed_step']:.3f}, leaves {left:.3f} "
-              f"at the edges: {'passes' if ch['passed'] else ch['failed']}")
+        gc = "none (diverged)" if ch["gap_closed_step"] is None else f"{ch['gap_closed_step']:.3f}"
+        left = "nothing to judge" if share is None else f"{share:.3f}"
+        print(f"    {d.lib[r['i']].name:9s} gap closed {gc}, leaves {left} at the edges: "
+              f"{'passes' if ch['passed'] else ch['failed']}")
 
 
 def main(argv=None):

@@ -1214,6 +1214,13 @@ def test_a_saturation_refused_as_a_bend_is_judged_again_when_a_rail_passes_and_c
     assert said == ['step 1: +saturation closes more than +clip, which passes: judged again without '
                     '"the slope above the knee drops by 56%, less than a stroke limit\'s 67%: a bend of the '
                     'loop", passes']
+    # a later step (the rail accepted first, on its ΔBIC) does not take it for
+    # a stop alone on the nominal: it is judged with its refusal again
+    me.candidates = [{"effect": "saturation", "checks": s}]
+    fit = {"rms": 0.05, "th": [np.zeros(2)]}
+    later = me.check_candidate(0, 1, fit, None, 0.015, [clip, sat])
+    assert not later["passed"] and later["refused"].startswith("the slope above the knee drops by 56%")
+    me.candidates = []
     # the rail closes more (a rail, seeds 33001 and 42015): the bend stays refused
     s, c = step(0.69, 0.998)
     assert c["passed"] and not s["passed"] and "overruled" not in s and said == []

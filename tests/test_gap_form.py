@@ -930,7 +930,7 @@ def test_an_effect_on_the_reference_is_material_on_the_records_within_the_traini
     d = Diagnosis.__new__(Diagnosis)
     d.sigma2, d.min_gap_closed, d.seed, d.candidates = s2, 0.2, 0, []
     d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], identified=lambda th: True, loro_slack=0.0,
-                             refuses=lambda params: None, lag=False, explains_edges=False, dead_time=False)]
+                             refuses=lambda params: None, lag=False, explains_edges=False, transport_delay=False)]
     d.edges = StepEdges([], 1e-4, 1.0)
     d._own_bic = lambda *a: -math.inf
     d.val_s = [SimpleNamespace(y=np.zeros(n), dt=1e-3) for _ in range(3)]

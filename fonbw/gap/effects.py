@@ -93,13 +93,16 @@ class Effect:
         The block is a lag that the step edges show whole: its fit must take
         nearly all of the nominal's misfit there
         (:meth:`fonbw.gap.edges.StepEdges.left`).
-    dead_time : bool
-        The block is a dead time: when the step edges refuse its fit, it is
-        searched again over the delays they accept (``within(lo, hi)``), and
-        where they hold a dead time it may be judged within the training
-        rates.
+    transport_delay : bool
+        The block is a transport delay: when the step edges refuse its fit,
+        it is searched again over the delays they accept (it then has a
+        method ``within(lo, hi)`` giving the block so bounded), and where
+        they hold a dead time it may be judged within the training rates.
     overruled_by : str or None
-        The block whose passing beside it sets aside its :meth:`refuses`.
+        The block whose passing at the same greedy step, closing less, shows
+        that what :meth:`refuses` took for something imitated is in the
+        records: the refused block is then checked without its refusal
+        (:meth:`fonbw.gap.greedy.GreedySteps._overrule`). None: no block can.
     """
 
     name = "none"
@@ -114,7 +117,8 @@ class Effect:
     lin_nonneg = False
     lag = False
     explains_edges = False
-    dead_time = False
+    transport_delay = False
+    overruled_by: str | None = None
     search_seeds = 1
     #: How far above 1 the pooled leave-one-record-out ratio may lie
     #: (:func:`fonbw.gap.checks.loro`) for the block to pass.
@@ -153,12 +157,6 @@ class Effect:
         its :attr:`overruled_by` block passes beside it and closes less.
         """
         return None
-
-    #: The block whose passing at the same greedy step, closing less, shows
-    #: that what :meth:`refuses` took for something imitated is in the
-    #: records: the refused block is then checked without its refusal
-    #: (:meth:`fonbw.gap.greedy.GreedySteps._overrule`). None: no block can.
-    overruled_by: str | None = None
 
     def describe(self, th, lin) -> dict:
         """Parameters by name (nonlinear then linear) as plain floats."""
@@ -304,7 +302,7 @@ class Delay(Effect):
     units = {"delay": "s"}
     input_side = True
     lag = True
-    dead_time = True
+    transport_delay = True
 
     def __init__(self, dt):
         super().__init__()

@@ -148,13 +148,14 @@ class GreedySteps:
 
     def _edges_left(self, fit, eff):
         """:meth:`fonbw.gap.edges.StepEdges.left` for the refit `fit` of
-        effects `eff` against the attribution's nominal: (why refused or
-        None, share of the nominal's misfit at the edges left or None)."""
+        effects `eff` against the attribution's nominal, whose training
+        outputs are the context's ``yref_tr``: (why refused or None, share of
+        the nominal's misfit at the edges left or None)."""
         if not len(self.edges):
             return None, None
-        if "residuals_tr" not in self.att:  # the nominal's, once per attribution context
-            self.att["residuals_tr"] = self._residuals_tr(self.att["base"], [])
-        (before, lengths), (after, _) = self.att["residuals_tr"], self._residuals_tr(fit, eff)
+        recs = self.att["fitter"].records
+        before = np.concatenate([r.y - p for r, p in zip(recs, self.att["yref_tr"])])
+        after, lengths = self._residuals_tr(fit, eff)
         return self.edges.left(before, after, lengths, self.att["fitter"].keep)
 
     def _judged_within_rates(self, block):
@@ -165,7 +166,7 @@ class GreedySteps:
         0.27-0.39 of those records' gap on three rate-dependent cores without
         one (seeds 35029, 39022, 40002); a dead time is what no such core
         holds, and a delay searched within it is the edges' own reading."""
-        return not block.lag or (block.dead_time and self.edges.dead_time() is not None)
+        return not block.lag or (block.transport_delay and self.edges.dead_time() is not None)
 
     def _within_rates(self, step, pv, block):
         """The candidate `block` with validation predictions `pv` judged on the
@@ -255,7 +256,8 @@ class GreedySteps:
             rival = by_name.get(block.overruled_by)
             if (rival is None or not rival["checks"]["passed"] or ch.get("refused") is None
                     or block.refuses(self.att["fitter"].effect_params(r["fit"], r["eff"])[block.name]) is None
-                    or not (ch["gap_closed_step"] or -math.inf) > rival["checks"]["gap_closed_step"]):
+                    or ch["gap_closed_step"] is None
+                    or not ch["gap_closed_step"] > rival["checks"]["gap_closed_step"]):
                 continue
             r["checks"] = self.check_candidate(r["i"], step, r["fit"], r["pv"], r["mse"], r["eff"], overruled=True)
             verdict = "passes" if r["checks"]["passed"] else f"fails: {r['checks']['failed']}"
@@ -275,7 +277,7 @@ class GreedySteps:
         fit, pv, mse = self.refit_candidate(cur["idx"] + [i], cur["fit"])
         out = self.check_candidate(i, step, fit, pv, mse, cur["eff"] + [block])
         dead = (self.edges.delays_within_dead_time(block, cur["eff"], cur["fit"]["th"])
-                if out["refused"] is not None and block.dead_time else None)
+                if out["refused"] is not None and block.transport_delay else None)
         narrowed = None if dead is None else block.within(*dead)
         if narrowed is None:
             return fit, pv, mse, out, block
@@ -375,7 +377,8 @@ def _refused(block, step, params, first):
     reason = block.refuses(params)
     if reason is not None and step > 0:
         alone = next((c for c in first if c["effect"] == block.name), None)
-        if alone is not None and alone["checks"]["refused"] is None:
+        # one that passed there only beside its rival (:meth:`GreedySteps._overrule`) was no stop alone
+        if alone is not None and alone["checks"]["refused"] is None and "overruled" not in alone["checks"]:
             return None
     return reason
 
