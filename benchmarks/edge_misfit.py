@@ -63,9 +63,9 @@ def first_step(seed):
 def report(seed):
     d, sc, res = first_step(seed)
     injected = {k: round(v["magnitude"], 1) for k, v in sc["injected"].items()}
-    recs, keep = d.att["fitter"].records, d.att["fitter"].keep
-    before = np.concatenate([r.y - p for r, p in zip(recs, d.att["yref_tr"])])
-    lengths = [len(r.y) for r in recs]
+    f = d.att["fitter"]
+    before, lengths = d._residuals_tr(d.att["yref_tr"])
+    keep = f.keep
     win = d.edges.windows(lengths)
     keep = np.ones(win.size, dtype=bool) if keep is None else keep
     s2 = d.sigma2
@@ -74,8 +74,8 @@ def report(seed):
     print(f"{seed} {sc['family']} {sc['kind']} {injected} on {d.att['core']}: {len(d.edges)} edges, "
           f"nominal misfit {b_in:.1f} σ² within their windows, {b_out:.2f} σ² elsewhere")
     for r in res:
-        after, _ = d._residuals_tr(r["fit"], r["eff"])
-        share = d.edges.left(before, after, lengths, d.att["fitter"].keep)[1]
+        after, _ = d._residuals_tr(f.predict(f.records, r["fit"], r["eff"], d.att["yref_tr"]))
+        share = d.edges.left(before, after, lengths, f.keep)[1]
         ch = r["checks"]
         gc = "none (diverged)" if ch["gap_closed_step"] is None else f"{ch['gap_closed_step']:.3f}"
         left = "nothing to judge" if share is None else f"{share:.3f}"

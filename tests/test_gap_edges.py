@@ -481,7 +481,7 @@ def test_an_amplifier_that_leaves_the_edges_misfit_is_refused_and_said_why(monke
                          att={"excess": 0.019, "yref_tr": [0.1 * recs[0].u], "base": {"th": []},
                               "fitter": SimpleNamespace(y=np.zeros(10_000), records=recs, keep=None, predict=predict,
                                                         effect_params=lambda fit, eff: {"amplifier": {}, "delay": {}})})
-    me._residuals_tr = lambda fit, eff: Diagnosis._residuals_tr(me, fit, eff)
+    me._residuals_tr = lambda pred: Diagnosis._residuals_tr(me, pred)
     me._edges_left = lambda fit, eff: Diagnosis._edges_left(me, fit, eff)
     # the nominal's training outputs are the context's yref_tr
     assert predict(recs, me.att["base"], [], None)[0] == pytest.approx(me.att["yref_tr"][0])

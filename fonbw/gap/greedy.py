@@ -139,12 +139,11 @@ class GreedySteps:
         out["identified"] = bool(lib[i].identified(fit["th"][-1]))
         return out
 
-    def _residuals_tr(self, fit, eff):
-        """Residuals [µm] of a fitted configuration on the training records as
-        the fitter holds them, end to end, and the records' lengths."""
-        f = self.att["fitter"]
-        pred = f.predict(f.records, fit, eff, self.att["yref_tr"])
-        return np.concatenate([r.y - p for r, p in zip(f.records, pred)]), [len(r.y) for r in f.records]
+    def _residuals_tr(self, pred):
+        """Residuals [µm] of training predictions `pred` (one array per record
+        as the fitter holds them), end to end, and the records' lengths."""
+        recs = self.att["fitter"].records
+        return np.concatenate([r.y - p for r, p in zip(recs, pred)]), [len(r.y) for r in recs]
 
     def _edges_left(self, fit, eff):
         """:meth:`fonbw.gap.edges.StepEdges.left` for the refit `fit` of
@@ -153,10 +152,10 @@ class GreedySteps:
         the nominal's misfit at the edges left or None)."""
         if not len(self.edges):
             return None, None
-        recs = self.att["fitter"].records
-        before = np.concatenate([r.y - p for r, p in zip(recs, self.att["yref_tr"])])
-        after, lengths = self._residuals_tr(fit, eff)
-        return self.edges.left(before, after, lengths, self.att["fitter"].keep)
+        f = self.att["fitter"]
+        before, lengths = self._residuals_tr(self.att["yref_tr"])
+        after, _ = self._residuals_tr(f.predict(f.records, fit, eff, self.att["yref_tr"]))
+        return self.edges.left(before, after, lengths, f.keep)
 
     def _judged_within_rates(self, block):
         """Whether `block` may be judged on the records within the training
