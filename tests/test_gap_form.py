@@ -1069,3 +1069,33 @@ def test_effects_on_the_reference_leave_the_diagnosis_as_it_was(monkeypatch, for
     assert d.calls == (["reference"] if form_gc > -1 and not at_floor else [])
     assert {k: getattr(d, k) for k in keys} == before and d.lib == lib and d.timing["attribute_s"] == 7.0
     assert "form_on_effects_s" not in d.timing
+
+
+@pytest.mark.parametrize("fonbw_s2, final_s2, tried, kept", [
+    (15.0, 3.0, True, True),     # FONBW + drift close 5/19 = 0.26; the reference + creep 17/19, 12 σ² more
+    (11.0, 8.0, True, False),    # FONBW + drift close 0.47; the reference + creep only 3 σ² more: under 0.2 × 19
+    (10.0, 3.0, False, False)])  # FONBW + drift close 10/19 = 0.53: explained, not tried
+def test_effects_on_the_reference_when_fonbw_effects_leave_most_of_the_gap(monkeypatch, fonbw_s2, final_s2, tried,
+                                                                            kept):
+    import copy
+
+    from fonbw.gap import form as fm
+    from fonbw.gap import selection
+
+    d = _behind_case(-0.4, final_s2)
+    s2 = d.sigma2
+    d.accepted, d.current = ["drift"], {"mse": fonbw_s2 * s2, "eff": ["drift"]}
+    d.steps = d.steps + [{"label": "+drift", "rms_validate": np.sqrt(fonbw_s2 * s2)}]
+    keys = ("att", "candidates", "accepted", "later_steps", "steps", "current", "edges", "form")
+    before = copy.deepcopy({k: getattr(d, k) for k in keys})
+    confirmed = {"passed": True, "gap_closed_after_effects": 0.9, "where": None}
+    monkeypatch.setattr(fm, "confirm_form", lambda dd, cur: (dict(confirmed), {"mse": 24e-4}))
+    fm.judge_on_effects(d)
+    assert d.calls == (["reference"] if tried else [])
+    if not kept:
+        # FONBW's effects stand; the reference alone lost to FONBW, so no form is asked after them
+        assert {k: getattr(d, k) for k in keys} == before and "form_on_effects_s" not in d.timing
+        return
+    assert d.accepted == ["creep"] and d.att == {"core": "reference"} and d.form["found_with_effects"]
+    assert d.form["instead_of_fonbw_effects"] == {"named": ["drift"], "gap_closed": pytest.approx(5 / 19)}
+    assert "on FONBW, drift closed only 0.263 of the gap" in selection.form_text(d.form)

@@ -14,13 +14,15 @@ residual is organised by that feature. The noise floor σ² is the level of the
 residual spectrum in the upper part of the band, where a model of a
 piezo stage driven by the paper's inputs has no error left but white
 sensor noise (its median is robust to the few bins a step edge leaves there).
+:func:`where` places a correction of one model by another (the hysteresis
+form's) on the loop by the same features.
 """
 from __future__ import annotations
 
 import numpy as np
 from scipy.signal import welch
 
-__all__ = ["noise_floor", "localize", "tones", "reversal_age", "branch", "TONE_SHARE", "TONE_PREDICTED"]
+__all__ = ["noise_floor", "localize", "tones", "reversal_age", "branch", "where", "TONE_SHARE", "TONE_PREDICTED"]
 
 
 def _psd(r, dt, nperseg=256):
@@ -278,3 +280,46 @@ def _features(r, rate, amp, br, age, dt, n_bins):
     feats["time_since_reversal"] = _binned(age, r, e)
     feats["time_since_reversal"]["unit"] = "s"
     return feats
+
+
+def where(records, p0, p1, dt, n_bins=8):
+    """Where on the loop the form's correction δ = p1 − p0 [µm] concentrates.
+
+    Returns ``dominant`` (the localization feature with the largest η² of δ:
+    input_rate, amplitude, branch, time_since_reversal), ``eta2`` per
+    feature, the shares of Σδ² in the ``top`` and ``bottom`` fifth of the
+    input range, in ``minor_loops`` (branches spanning under half the range)
+    and ``rms_um`` (RMS of δ).
+    """
+    delta = np.concatenate([b - a for a, b in zip(p0, p1)])
+    u = np.concatenate([r.u for r in records])
+    rate = np.concatenate([np.abs(np.gradient(r.u, dt)) for r in records])
+    br = np.concatenate([branch(r.u) for r in records])
+    age = np.concatenate([reversal_age(r.u, dt) for r in records])
+    feats = _features(delta, rate, u, br, age, dt, n_bins)
+    eta = {k: float(v["eta2"]) for k, v in feats.items()}
+    e2 = delta * delta
+    tot = float(e2.sum()) or 1.0
+    lo, hi = float(u.min()), float(u.max())
+    span = hi - lo or 1.0
+    minor = np.concatenate([_minor(r.u, span) for r in records])
+    return {"dominant": max(eta, key=eta.get), "eta2": eta,
+            "top": float(e2[u >= hi - 0.2 * span].sum() / tot),
+            "bottom": float(e2[u <= lo + 0.2 * span].sum() / tot),
+            "minor_loops": float(e2[minor].sum() / tot), "rms_um": float(np.sqrt(np.mean(e2)))}
+
+
+def _minor(u, span):
+    """Samples on branches that span less than half the input range `span` [V]."""
+    br = branch(u)
+    moving = np.flatnonzero(br != 0)
+    out = np.zeros(len(u), dtype=bool)
+    if moving.size == 0:
+        return out
+    # branch boundaries: where the moving direction changes
+    s = br[moving]
+    cuts = moving[np.flatnonzero(np.diff(s) != 0) + 1]
+    edges = np.r_[0, cuts, len(u)]
+    for a, b in zip(edges[:-1], edges[1:]):
+        out[a:b] = np.ptp(u[a:b]) < 0.5 * span
+    return out

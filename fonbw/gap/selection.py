@@ -11,7 +11,11 @@ import math
 
 from .checks import flag_text
 
-__all__ = ["pick_best", "retry_pool", "verdict", "form_text"]
+__all__ = ["pick_best", "retry_pool", "verdict", "form_text", "EXPLAINED"]
+
+#: Share of the excess gap the form and the effects must close together for
+#: a verdict not to be "unexplained" (most of the gap).
+EXPLAINED = 0.5
 
 
 def pick_best(results, tie_margin=math.inf):
@@ -112,8 +116,10 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         ``found_alone`` and ``drop_sigma2`` (the validation MSE it removes,
         in noise variances) when it was named with no effect beside it;
         ``found_with_effects`` when the effects were found on the reference
-        after FONBW named none, the reference alone doing worse than FONBW
-        (its ``gap_closed`` is then negative).
+        after FONBW named none, or named effects that left most of its gap
+        (then ``instead_of_fonbw_effects``: their ``named`` and
+        ``gap_closed``), the reference alone doing worse than FONBW (its
+        ``gap_closed`` is then negative) or not material.
     start : dict, optional
         How the records start (burn-ins).
     remaining : list of dict, optional
@@ -167,7 +173,7 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
     out = {
         "effects": [] if at_floor else accepted,
         "gap_closed": float(total),
-        "unexplained": bool(not at_floor and total < 0.5),
+        "unexplained": bool(not at_floor and total < EXPLAINED),
         "at_noise_floor": bool(at_floor),
         "steps": steps,
         "waterfall": [{"step": st["label"], "rms_validate": st["rms_validate"],
@@ -215,9 +221,14 @@ def form_text(form):
         text += (f", with no effect named: it lowers the validation MSE by {form['drop_sigma2']:.3g} noise "
                  "variances, and what is left no candidate explains")
     if material and form.get("found_with_effects"):
-        text += (f", beside the effects: alone it does worse than FONBW, whose fractional memory takes up part of "
-                 f"them, and on top of them it closes {form['gap_closed_after_effects']:.3g} of what FONBW + "
-                 "them leaves")
+        alone = ("does worse than FONBW, whose fractional memory takes up part of them" if form["gap_closed"] < 0
+                 else "is not material")
+        text += (f", beside the effects: alone it {alone}, and on top of them it closes "
+                 f"{form['gap_closed_after_effects']:.3g} of what FONBW + them leaves")
+        fonbw = form.get("instead_of_fonbw_effects")
+        if fonbw:
+            text += (f" (on FONBW, {', '.join(fonbw['named'])} closed only {fonbw['gap_closed']:.3g} of the gap; "
+                     "the effects found on the reference replace them)")
     if material and form.get("found_after_effects"):
         text += (f", found on top of the accepted effects ({form['gap_closed_after_effects']:.3g} of what "
                  "they leave)")
