@@ -1090,7 +1090,8 @@ def test_an_effect_needs_a_bic_drop_of_more_than_ten_on_the_training_records(mon
     monkeypatch.setattr(checks, "loro", lambda *a: {"ratios": [0.5], "pooled_ratio": 0.5})
     n, mse_tr = 10_000, 0.01
     block = SimpleNamespace(name="a", names=("a", "b"), lin_names=(), identified=lambda th: True, loro_slack=0.0,
-                            refuses=lambda params: None, lag=False, explains_edges=False)
+                            refuses=lambda params: None, lag=False, edges_left_most=None,
+                            transport_delay=False)
     me = SimpleNamespace(current={"mse": 0.02, "mse_tr": mse_tr, "pred": None, "fit": None, "eff": []},
                          lib=[block], sigma2=0.001, min_gap_closed=0.2, val_s=None, seed=0, candidates=[],
                          edges=StepEdges([], 1e-4, 1.0),

@@ -841,7 +841,8 @@ def test_an_effect_is_material_by_the_same_share_on_either_nominal(core):
     d.sigma2, d.min_gap_closed, d.seed, d.candidates = 0.01, 0.2, 0, []
     d.val_s, d.coverage = None, []  # no validation record faster than the training ones
     d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], identified=lambda th: True, loro_slack=0.0,
-                             refuses=lambda params: None, lag=False, explains_edges=False)]
+                             refuses=lambda params: None, lag=False, edges_left_most=None,
+                             transport_delay=False)]
     d.edges = StepEdges([], 1e-4, 1.0)  # records without steps
     d._own_bic = lambda *a: -math.inf  # the block is all of its refit's gain
     d.att = {"core": core, "excess": 1.0, "fitter": SimpleNamespace(y=np.zeros(1000), effect_params=lambda fit, eff: {"a": {}})}
@@ -893,7 +894,8 @@ def test_a_later_effect_is_material_when_it_closes_much_of_what_is_left():
     d.sigma2, d.min_gap_closed, d.seed, d.candidates = 1.0, 0.2, 0, []
     d.val_s, d.coverage = None, []
     d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], identified=lambda th: True, loro_slack=0.0,
-                             refuses=lambda params: None, lag=False, explains_edges=False)]
+                             refuses=lambda params: None, lag=False, edges_left_most=None,
+                             transport_delay=False)]
     d.edges = StepEdges([], 1e-4, 1.0)  # records without steps
     d._own_bic = lambda *a: -math.inf  # the block is all of its refit's gain
     d.att = {"core": "fonbw", "excess": 100.0, "fitter": SimpleNamespace(y=np.zeros(1000), effect_params=lambda fit, eff: {"a": {}})}
@@ -930,7 +932,8 @@ def test_an_effect_on_the_reference_is_material_on_the_records_within_the_traini
     d = Diagnosis.__new__(Diagnosis)
     d.sigma2, d.min_gap_closed, d.seed, d.candidates = s2, 0.2, 0, []
     d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], identified=lambda th: True, loro_slack=0.0,
-                             refuses=lambda params: None, lag=False, explains_edges=False, transport_delay=False)]
+                             refuses=lambda params: None, lag=False, edges_left_most=None,
+                             transport_delay=False)]
     d.edges = StepEdges([], 1e-4, 1.0)
     d._own_bic = lambda *a: -math.inf
     d.val_s = [SimpleNamespace(y=np.zeros(n), dt=1e-3) for _ in range(3)]
@@ -985,7 +988,8 @@ def test_an_effect_on_the_reference_is_material_on_the_records_within_the_traini
     d.edges = StepEdges([], 1e-4, 1.0)
     assert "within_training_rates" not in d.check_candidate(0, 0, fit, pv, checks.mse(d.val_s, pv), d.lib)
     d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], identified=lambda th: True, loro_slack=0.0,
-                             refuses=lambda params: None, lag=False, explains_edges=False)]
+                             refuses=lambda params: None, lag=False, edges_left_most=None,
+                             transport_delay=False)]
     d.att["fitter"].effect_params = lambda fit, eff: {"a": {}}
     # closing less than a fifth of their excess is not material there either
     pv[0][:] = pv[2][:] = math.sqrt(0.1 - 0.017)

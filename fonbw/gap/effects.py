@@ -36,7 +36,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from .. import plant as _plant
-from . import knee
+from . import edges, knee
 from .blas import single_thread
 from .filters import first_order
 
@@ -89,10 +89,14 @@ class Effect:
     search_seeds : int
         Seeds the block's refit on the FONBW nominal runs from (search and
         polish each; the best training fit at the full rate is kept).
-    explains_edges : bool
-        The block is a lag that the step edges show whole: its fit must take
-        nearly all of the nominal's misfit there
-        (:meth:`fonbw.gap.edges.StepEdges.left`).
+    edges_left_most : float or None
+        The block is a lag that the step edges show whole: its fit may leave
+        at most this share of the nominal's misfit there
+        (:meth:`fonbw.gap.edges.StepEdges.left`; a transport delay is judged
+        so only where the edges show it under a sample,
+        :func:`fonbw.gap.greedy._edges_left_most`). None: not judged so.
+    edges_who : str
+        What does so, for the refusal's message.
     transport_delay : bool
         The block is a transport delay: when the step edges refuse its fit,
         it is searched again over the delays they accept (it then has a
@@ -116,7 +120,8 @@ class Effect:
     c_min = -math.inf
     lin_nonneg = False
     lag = False
-    explains_edges = False
+    edges_left_most: float | None = None
+    edges_who = ""
     transport_delay = False
     overruled_by: str | None = None
     search_seeds = 1
@@ -241,6 +246,8 @@ class Dynamics(Effect):
     names = ("f_res", "zeta")
     units = {"f_res": "Hz", "zeta": "1"}
     lag = True
+    edges_left_most = edges.MODE_LEFT
+    edges_who = "a mode of the stage"
 
     def __init__(self, dt):
         super().__init__()
@@ -303,6 +310,8 @@ class Delay(Effect):
     input_side = True
     lag = True
     transport_delay = True
+    edges_left_most = edges.LEFT
+    edges_who = "a delay of the drive under a sample"
 
     def __init__(self, dt):
         super().__init__()
@@ -370,7 +379,8 @@ class Amplifier(Effect):
     units = {"f_c": "Hz", "slew": "V/s"}
     input_side = True
     lag = True
-    explains_edges = True
+    edges_left_most = edges.LEFT
+    edges_who = "the drive's own amplifier"
     # The global search sees decimated records, where the slew limit hardly
     # shows, so the valley the full-rate polish ends in depends on the
     # search's draw: on a FONBW core with an amplifier (blind harness, seed
