@@ -6,9 +6,11 @@ on the better nominal). Printed per seed: the nominal's mean square error
 within the step edges' windows against elsewhere (the training records, in
 noise variances), and for each lag candidate the share of the windows'
 misfit its refit leaves, with its gap closed and how its checks end
-(:meth:`fonbw.gap.edges.StepEdges.left`, which refuses an amplifier that
-leaves more than :data:`fonbw.gap.edges.LEFT` where the edges' misfit is
-their own, :data:`fonbw.gap.edges.OWN_MISFIT`).
+(:meth:`fonbw.gap.edges.StepEdges.left`, which refuses an amplifier, and a
+delay where the output moves in the edges' own samples, that leaves more than
+:data:`fonbw.gap.edges.LEFT`, and a resonance that leaves more than
+:data:`fonbw.gap.edges.MODE_LEFT`, where the edges' misfit is their own,
+:data:`fonbw.gap.edges.OWN_MISFIT`).
 
 Usage::
 

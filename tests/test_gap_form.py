@@ -1073,6 +1073,8 @@ def test_effects_on_the_reference_leave_the_diagnosis_as_it_was(monkeypatch, for
     assert d.calls == (["reference"] if form_gc > -1 and not at_floor else [])
     assert {k: getattr(d, k) for k in keys} == before and d.lib == lib and d.timing["attribute_s"] == 7.0
     assert "form_on_effects_s" not in d.timing
+    # the time the form's check on the reference's effects took is kept
+    assert ("form_on_reference_effects_s" in d.timing) == (d.calls == ["reference"])
 
 
 @pytest.mark.parametrize("fonbw_s2, final_s2, tried, kept", [

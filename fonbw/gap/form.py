@@ -397,8 +397,13 @@ def judge_on_effects(d):
     ``d.current``, ``d.att``, ``d.steps`` (and what the attribution sets,
     when effects are found on the reference)."""
     # the reference alone must beat FONBW alone on validation before a form is
-    # named late: one that wins only beside an effect takes up that block's
-    # misfit (a one-pole amplifier for a two-pole one on a FONBW core), not loop shape
+    # named late on FONBW's effects: one that wins only beside an effect takes
+    # up that block's misfit (a one-pole amplifier for a two-pole one on a
+    # FONBW core), not loop shape. The exception is FONBW naming nothing or
+    # too little: the reference then gets an attribution of its own, and its
+    # effects stand only when they beat FONBW's by a first effect's share.
+    # That is tried before the form on FONBW's effects: effects that leave
+    # most of the gap are not what a form should be judged on top of.
     reference_wins = not d.at_floor and d.mse_ref < d.mse0
     if not d.accepted:
         if not d.form["material"] and reference_wins:
@@ -505,8 +510,8 @@ REFERENCE_BEHIND = -1.0
 def _reference_behind_by_an_effect(d):
     """Whether FONBW named nothing, or effects that leave most of its gap
     (the verdict would say "unexplained": :data:`fonbw.gap.selection.EXPLAINED`),
-    while the reference alone, not material, is close enough behind it that
-    an effect it leaves may be the reason."""
+    while the reference alone is not material: ahead of FONBW by too little,
+    or close enough behind it that an effect it leaves may be the reason."""
     return bool(not d.form["material"] and not d.at_floor and d.form.get("gap_closed") is not None
                 and d.form["gap_closed"] > REFERENCE_BEHIND
                 and d.mse0 - d.current["mse"] < EXPLAINED * d.excess0)
@@ -519,7 +524,8 @@ def _effects_on_the_reference(d):
     (:func:`confirm_form`; a FONBW + them that diverges is no evidence here,
     the form was not material to begin with) and the reference with them beats
     FONBW with its own effects by what a first effect must close. Otherwise the
-    diagnosis is left as it was (its timing keeps the time spent). Returns
+    diagnosis is left as it was; its timing keeps the time spent
+    (``attribute_reference_s``, ``form_on_reference_effects_s``). Returns
     whether the reference's effects were kept."""
     # every attribute the attribution rebinds (current, candidates, edges, ...)
     # goes back by the snapshot; the library is changed in place
@@ -537,7 +543,7 @@ def _effects_on_the_reference(d):
     d.timing["attribute_reference_s"] = d.timing.pop("attribute_s")
     if t_fonbw is not None:
         d.timing["attribute_s"] = t_fonbw
-    kept = False
+    kept, t_form = False, None
     if not d.accepted:
         d.say("none accepted on the reference either")
     else:
@@ -564,6 +570,8 @@ def _effects_on_the_reference(d):
     vars(d).clear()
     vars(d).update(saved)
     d.lib[:] = lib
+    if t_form is not None:  # d.timing is the one dict the snapshot holds too
+        d.timing["form_on_reference_effects_s"] = t_form
     return False
 
 

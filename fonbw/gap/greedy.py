@@ -90,8 +90,9 @@ class GreedySteps:
         :func:`fonbw.gap.checks.lacks_evidence`), ``material``, ``refused``
         (why the fitted block is not its own effect, or None: the block's own
         judgement, and for a lag the training records' step edges,
-        :mod:`fonbw.gap.edges`; for an amplifier also the share of the
-        nominal's misfit at the edges it leaves, ``edges_left``:
+        :mod:`fonbw.gap.edges`; for an amplifier, a resonance and a delay
+        under a sample also the share of the nominal's misfit at the edges
+        it leaves, ``edges_left``: :func:`_edges_left_most`,
         :meth:`_edges_left`), ``within_training_rates`` (when it is
         material only on the validation records within the training input
         rates, :meth:`_within_rates`; the bootstrap then resamples those),
