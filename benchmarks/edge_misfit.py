@@ -27,8 +27,6 @@ import os
 import sys
 import time
 
-import numpy as np
-
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from blind_gap import DEFAULTS  # noqa: E402
@@ -36,7 +34,7 @@ from gap_cores import FAMILIES  # noqa: E402
 from gap_truth import draw_scenario, scenario_family  # noqa: E402
 
 from fonbw.gap.attribute import Diagnosis  # noqa: E402
-from fonbw.gap.edges import StepEdges  # noqa: E402
+from fonbw.gap.edges import LEFT  # noqa: E402
 from fonbw.gap.workers import Pool  # noqa: E402
 
 LAGS = ("amplifier", "delay", "dynamics")
@@ -52,11 +50,7 @@ def first_step(seed):
         d.fit_nominal()
         d.localize_residual()
         d.form_stage()
-        a = d.att
-        d.current = {"fit": a["base"], "eff": [], "idx": [], "mse": a["mse"], "mse_tr": a["base"]["rms"] ** 2,
-                     "pred": a["pred"]}
-        d.candidates, d.accepted, d.later_steps, d.within_rates = [], [], [], {}
-        d.edges = StepEdges(d.rs.raw["train"], d.dt, math.sqrt(d.sigma2))
+        d.begin_attribution()
         pool = [i for i, b in enumerate(d.lib) if b.name in LAGS]
         res = d.try_candidates(0, pool, time.perf_counter())
     return d, sc, res
@@ -65,19 +59,14 @@ def first_step(seed):
 def report(seed):
     d, sc, res = first_step(seed)
     injected = {k: round(v["magnitude"], 1) for k, v in sc["injected"].items()}
-    f = d.att["fitter"]
     before, lengths = d._residuals_tr(d.att["yref_tr"])
-    keep = f.keep
-    win = d.edges.windows(lengths)
-    keep = np.ones(win.size, dtype=bool) if keep is None else keep
-    s2 = d.sigma2
-    b_in = float((before[win & keep] ** 2).mean()) / s2 if (win & keep).any() else math.nan
-    b_out = float((before[~win & keep] ** 2).mean()) / s2
+    m = d.edges.misfit(before, lengths, d.att["fitter"].keep)
+    b_in, b_out = (math.nan, math.nan) if m is None else (m[0] / d.sigma2, m[1] / d.sigma2)
     print(f"{seed} {sc['family']} {sc['kind']} {injected} on {d.att['core']}: {len(d.edges)} edges, "
           f"nominal misfit {b_in:.1f} σ² within their windows, {b_out:.2f} σ² elsewhere")
     for r in res:
-        after, _ = d._residuals_tr(f.predict(f.records, r["fit"], r["eff"], d.att["yref_tr"]))
-        share = d.edges.left(before, after, lengths, f.keep)[1]
+        # the share only: which limit judges it does not change it
+        share = d._edges_left(r["fit"], r["eff"], LEFT, "")[1]
         ch = r["checks"]
         gc = "none (diverged)" if ch["gap_closed_step"] is None else f"{ch['gap_closed_step']:.3f}"
         left = "nothing to judge" if share is None else f"{share:.3f}"

@@ -48,6 +48,12 @@ def _viscous_core(u, share=0.4, tau=0.01):
     return 0.1 * (share * u + (1.0 - share) * _lag(u, tau))
 
 
+def _relaxing_core(u):
+    # an instant part and relaxations over 1 and 20 ms: a step response no
+    # single lag or mode of the drive or stage follows
+    return 0.1 * (0.3 * u + 0.3 * _lag(u, 0.001) + 0.4 * _lag(u, 0.02))
+
+
 def test_the_edges_of_a_step_record_are_found_where_the_command_jumps():
     _, u = signals.step_hold_input((40.0, 100.0, 60.0), hold=1.0, fs=FS)
     assert edges.find(u, DT) == [500, 5500, 10500]
@@ -449,7 +455,7 @@ def test_no_amplifier_takes_the_edges_of_a_core_that_answers_at_once_and_relaxes
         e = StepEdges(r, DT, sigma=0.001)
         return lambda fc, g: e.left(y - 0.1 * u, y - g * amp.transform_input(u, DT, np.array([fc, 1e9])), [u.size])
 
-    relaxing = judge(lambda u: 0.1 * (0.3 * u + 0.3 * _lag(u, 0.001) + 0.4 * _lag(u, 0.02)))
+    relaxing = judge(_relaxing_core)
     shares = [relaxing(fc, g)[1] for fc in np.geomspace(1.0, 2000.0, 100) for g in np.linspace(0.08, 0.12, 21)]
     assert min(shares) == pytest.approx(0.2183, abs=5e-4) and min(shares) > edges.LEFT
     assert relaxing(40.0, 0.1)[0] is not None
@@ -471,7 +477,7 @@ def test_no_mode_takes_most_of_the_edges_of_a_core_that_answers_at_once_and_rela
         return lambda f, z, g: e.left(y - 0.1 * u, y - g * dyn.output_op(u, DT, np.array([f, z])), [u.size],
                                       most=dyn.edges_left_most, who=dyn.edges_who)
 
-    relaxing = judge(lambda u: 0.1 * (0.3 * u + 0.3 * _lag(u, 0.001) + 0.4 * _lag(u, 0.02)))
+    relaxing = judge(_relaxing_core)
     shares = [relaxing(f, z, g)[1] for f in np.geomspace(20.0, 2000.0, 60) for z in np.linspace(0.02, 0.5, 13)
               for g in np.linspace(0.08, 0.12, 9)]
     assert min(shares) == pytest.approx(0.6916, abs=5e-4) and dyn.edges_left_most == edges.MODE_LEFT == 0.5
@@ -492,7 +498,7 @@ def test_an_amplifier_that_leaves_the_edges_misfit_is_refused_and_said_why(monke
 
     monkeypatch.setattr(checks, "bootstrap", lambda *a: {"p05": 0.2, "p10": 0.3, "p50": 0.4})
     monkeypatch.setattr(checks, "loro", lambda *a: {"ratios": [0.5], "pooled_ratio": 0.5})
-    recs = _records(lambda u: 0.1 * (0.3 * u + 0.3 * _lag(u, 0.001) + 0.4 * _lag(u, 0.02)))
+    recs = _records(_relaxing_core)
     amp, delay = Amplifier(DT, 100.0), Delay(DT)
 
     def predict(records, fit, eff, yref):
@@ -526,7 +532,7 @@ def test_an_amplifier_that_leaves_the_edges_misfit_is_refused_and_said_why(monke
     assert out["passed"] and out["edges_left"] < 1e-20
     # the relaxing core moves in each edge's own sample, so a delay is under a
     # sample and asked as the amplifier is: at half a sample it leaves 0.94
-    recs[0].y = 0.1 * (0.3 * recs[0].u + 0.3 * _lag(recs[0].u, 0.001) + 0.4 * _lag(recs[0].u, 0.02))
+    recs[0].y = _relaxing_core(recs[0].u)
     me.edges = StepEdges(recs, DT, sigma=0.001)
     assert me.edges.moves_at_once()
     out = checked(1, np.array([0.5 * DT]))

@@ -302,6 +302,18 @@ class StepEdges:
             masks[i][max(0, k - before):k + after] = True
         return np.concatenate(masks) if masks else np.zeros(0, dtype=bool)
 
+    def misfit(self, before, lengths, keep=None):
+        """Mean square [µm²] of residuals `before` within the edges' windows
+        (:meth:`windows`) and elsewhere, over the samples `keep` scores, and
+        the mask of the scored ones within; None when either part is empty.
+        Residuals run over records of `lengths` samples end to end."""
+        win = self.windows(lengths)
+        keep = np.ones(win.size, dtype=bool) if keep is None else np.asarray(keep, dtype=bool)
+        inside, outside = win & keep, ~win & keep
+        if not (inside.any() and outside.any()):
+            return None
+        return float(np.mean(before[inside] ** 2)), float(np.mean(before[outside] ** 2)), inside
+
     def left(self, before, after, lengths, keep=None, most=LEFT, who="the drive's own amplifier"):
         """Why a block whose fit has residuals `after` is not the records' own
         lag (`who`: an amplifier, a delay under a sample, :meth:`moves_at_once`,
@@ -311,12 +323,10 @@ class StepEdges:
         (:data:`OWN_MISFIT`). Residuals [µm] run over records of `lengths`
         samples end to end; `keep` masks the samples that are scored. Also
         returns the share left (None when the edges hold no misfit of their own)."""
-        win = self.windows(lengths)
-        keep = np.ones(win.size, dtype=bool) if keep is None else np.asarray(keep, dtype=bool)
-        inside, outside = win & keep, ~win & keep
-        if not (inside.any() and outside.any()):
+        m = self.misfit(before, lengths, keep)
+        if m is None:
             return None, None
-        b_in, b_out = float(np.mean(before[inside] ** 2)), float(np.mean(before[outside] ** 2))
+        b_in, b_out, inside = m
         if not b_in > OWN_MISFIT * b_out:
             return None, None
         share = float(np.mean(after[inside] ** 2)) / b_in

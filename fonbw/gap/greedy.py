@@ -321,11 +321,11 @@ class GreedySteps:
                                      "rms_validate": math.sqrt(self.current["mse"]),
                                      "accepted": None, "candidates": self._entries(results)})
 
-    def attribute(self):
-        """Greedy steps on the better nominal: add the best passing effect until
-        none passes, the gap reaches the noise floor or ``max_effects`` are accepted."""
-        t0 = time.perf_counter()
-        lib = self.lib
+    def begin_attribution(self):
+        """The state the greedy steps start from, in the attribution context
+        ``att``: the nominal alone as the current configuration, nothing
+        accepted, the training records' step edges, the waterfall's first
+        steps."""
         a = self.att
         self.current = {"fit": a["base"], "eff": [], "idx": [], "mse": a["mse"],
                         "mse_tr": a["base"]["rms"] ** 2, "pred": a["pred"]}
@@ -334,6 +334,13 @@ class GreedySteps:
         self.steps = [{"label": "nominal", "rms_validate": math.sqrt(self.mse0)}]
         if a["core"] == "reference":
             self.steps.append({"label": "form", "rms_validate": math.sqrt(a["mse"])})
+
+    def attribute(self):
+        """Greedy steps on the better nominal: add the best passing effect until
+        none passes, the gap reaches the noise floor or ``max_effects`` are accepted."""
+        t0 = time.perf_counter()
+        lib = self.lib
+        self.begin_attribution()
         pool = list(range(len(lib)))
         for step in range(self.max_effects):
             # an effect is credited only for what the better nominal leaves
