@@ -609,6 +609,12 @@ def test_a_failed_candidate_says_which_check_it_failed_first():
     assert _failed_check(boot, 0.02) is None
     boot["loro"]["pooled_ratio"] = 0.97
     assert _failed_check(boot) is None
+    # a drift must help the held-out records by a quarter: the mains hum's 0.981 does not
+    boot["loro"]["pooled_ratio"] = 0.981
+    assert _failed_check(boot, -0.25) == ("held-out records fit too little better (pooled ratio 0.981, "
+                                          "not below 0.75): the records do not share it")
+    boot["loro"]["pooled_ratio"] = 0.408
+    assert _failed_check(boot, -0.25) is None
     boot["loro"] = None  # nothing to hold out
     assert _failed_check(boot) is None
 
@@ -626,7 +632,7 @@ def test_a_rail_passes_the_held_out_records_check_by_a_small_slack_only():
     assert not loro_passes({"pooled_ratio": 1.002}, creep.loro_slack)
     assert loro_passes({"pooled_ratio": 0.999}, creep.loro_slack) and loro_passes(None)
     slack = {e.name: e.loro_slack for e in library(2e-4, 120.0, 10.0)}
-    assert slack.pop("clip") == 0.02 and set(slack.values()) == {0.0}
+    assert slack.pop("clip") == 0.02 and slack.pop("drift") == -0.25 and set(slack.values()) == {0.0}
     assert Saturation.loro_slack == 0.0
 
 

@@ -41,7 +41,9 @@ split into training and validation sets:
    effect still lowers the error on the held-out records over the time and
    the displacements the other records span (leave one record out, pooled;
    a clip may leave them up to 2 % worse, its ``loro_slack``: a rail acts
-   only where a command reaches it, which those spans rarely hold).
+   only where a command reaches it, which those spans rarely hold; a drift,
+   predicted on a held-out record wholly by the others' law, must leave them
+   at most 0.75 of their error).
    Greedy, at
    most ``max_effects`` effects, strongest first; the second step tries on
    top of the first every effect whose first refit lowered the training BIC,

@@ -126,7 +126,8 @@ class Effect:
     overruled_by: str | None = None
     search_seeds = 1
     #: How far above 1 the pooled leave-one-record-out ratio may lie
-    #: (:func:`fonbw.gap.checks.loro`) for the block to pass.
+    #: (:func:`fonbw.gap.checks.loro`) for the block to pass; below zero, by
+    #: how much the held-out records must fit better.
     loro_slack = 0.0
 
     def __init__(self):
@@ -224,6 +225,14 @@ class Drift(Effect):
     units = {"d1_um": "µm per 10 s", "d2_um": "µm per (10 s)²"}
     filtered_columns = False
     T0 = 10.0
+    # Not input-driven: a held-out record's drift is predicted wholly by the
+    # law fitted on the others, so the check has teeth here that it lacks for
+    # a block a held-out record may not excite. 18 injected drifts came out
+    # at pooled ratios of 0.01-0.41 (the 0.41 a 3.2-sigma drift beside an
+    # amplifier, seed 41023); the drifts named for a start-up transient on a
+    # null and for mains hum, neither shared by the records, at 0.93 and 0.98
+    # (45026, 45031)
+    loro_slack = -0.25
 
     def columns(self, ctx, th):
         s = ctx["t"] / self.T0

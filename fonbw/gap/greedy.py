@@ -422,5 +422,9 @@ def _failed_check(out, slack=0.0):
     if not out["bootstrap"]["p10"] > 0:
         return f"bootstrap 10th percentile {out['bootstrap']['p10']:.3g}"
     if not checks.loro_passes(out["loro"], slack):
-        return f"held-out records fit worse (pooled ratio {out['loro']['pooled_ratio']:.4g})"
+        ratio = out["loro"]["pooled_ratio"]
+        if ratio < 1.0:
+            return (f"held-out records fit too little better (pooled ratio {ratio:.4g}, "
+                    f"not below {1.0 + slack:.4g}): the records do not share it")
+        return f"held-out records fit worse (pooled ratio {ratio:.4g})"
     return None
