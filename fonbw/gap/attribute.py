@@ -43,7 +43,7 @@ split into training and validation sets:
    a clip may leave them up to 2 % worse, its ``loro_slack``: a rail acts
    only where a command reaches it, which those spans rarely hold; a drift,
    predicted on a held-out record wholly by the others' law, must leave them
-   at most 0.75 of their error).
+   less than 0.75 of their error).
    Greedy, at
    most ``max_effects`` effects, strongest first; the second step tries on
    top of the first every effect whose first refit lowered the training BIC,

@@ -317,7 +317,7 @@ def bootstrap(records, p0, p1, sigma2, seed, B=400, seg=0.2):
 def loro_passes(result, slack=0.0):
     """Whether a :func:`loro` result lets an effect pass: the held-out records,
     pooled, do not fit worse with it (ratio below 1 + `slack`, the block's
-    ``loro_slack``; a negative slack asks them to fit better by that share),
+    ``loro_slack``; a negative slack asks them to fit better by more than that share),
     or there was nothing to hold out (None)."""
     return result is None or result["pooled_ratio"] < 1.0 + slack
 

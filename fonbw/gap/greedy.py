@@ -425,6 +425,6 @@ def _failed_check(out, slack=0.0):
         ratio = out["loro"]["pooled_ratio"]
         if ratio < 1.0:
             return (f"held-out records fit too little better (pooled ratio {ratio:.4g}, "
-                    f"not below {1.0 + slack:.4g}): the records do not share it")
+                    f"not below {1.0 + slack:.4g}): the other records' fit does not carry over")
         return f"held-out records fit worse (pooled ratio {ratio:.4g})"
     return None
