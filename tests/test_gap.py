@@ -611,8 +611,9 @@ def test_a_failed_candidate_says_which_check_it_failed_first():
     assert _failed_check(boot) is None
     # a drift must help the held-out records by a quarter: the mains hum's 0.981 does not
     boot["loro"]["pooled_ratio"] = 0.981
-    assert _failed_check(boot, fx.Drift.loro_slack) == ("held-out records fit too little better (pooled ratio 0.981, "
-                                          "not below 0.75): the other records' fit does not carry over")
+    assert _failed_check(boot, fx.Drift.loro_slack) == (
+        "held-out records fit too little better (pooled ratio 0.981, "
+        "not below 0.75): the other records' fit does not carry over")
     boot["loro"]["pooled_ratio"] = 0.408
     assert _failed_check(boot, fx.Drift.loro_slack) is None
     boot["loro"] = None  # nothing to hold out

@@ -127,7 +127,7 @@ class Effect:
     search_seeds = 1
     #: How far above 1 the pooled leave-one-record-out ratio may lie
     #: (:func:`fonbw.gap.checks.loro`) for the block to pass; below zero, by
-    #: how much the held-out records must fit better.
+    #: more than how much the held-out records must fit better.
     loro_slack = 0.0
 
     def __init__(self):
