@@ -314,10 +314,11 @@ class StepEdges:
             return None
         return float(np.mean(before[inside] ** 2)), float(np.mean(before[outside] ** 2)), inside
 
-    def left(self, before, after, lengths, keep=None, most=LEFT, who="the drive's own amplifier"):
+    def left(self, before, after, lengths, keep=None, most=LEFT, who="a lag of the drive"):
         """Why a block whose fit has residuals `after` is not the records' own
-        lag (`who`: an amplifier, a delay under a sample, :meth:`moves_at_once`,
-        a mode), in words, or None: it leaves more than `most` of the
+        lag (`who`, the block's ``edges_who``: an amplifier, a delay under a
+        sample, :meth:`moves_at_once`, a mode), in words, or None: it leaves
+        more than `most` of the
         misfit of residuals `before` (the nominal's) within the edges'
         windows (:meth:`windows`), where that misfit is the edges' own
         (:data:`OWN_MISFIT`). Residuals [µm] run over records of `lengths`
