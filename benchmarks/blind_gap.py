@@ -174,6 +174,7 @@ def _verdict(res):
                            for c in d.get("candidates", [])],
             "later_steps": v.get("later_steps", []), "tones": v.get("tones", []),
             "step_edges": v.get("step_edges"), "within_training_rates": v.get("within_training_rates"),
+            "beyond_training": v.get("beyond_training"),
             "effect_params": v.get("params"), "remaining": v.get("remaining"), "at_bounds": nom.get("at_bounds")}
 
 

@@ -81,6 +81,7 @@ from ..identifiable import SIGMA_BOUNDED
 from ..io import Record
 from . import checks
 from . import form as fm
+from .beyond import beyond_training
 from . import effects as fx
 from . import selection
 from .fitter import KIND, Fitter, decimate, nominal_search, x_from_model
@@ -241,6 +242,8 @@ class Diagnosis(GreedySteps):
         self.lib = fx.library(dt, U, t_max, effects,
                               y_range=(float(np.quantile(ys, 0.001)), float(np.max(ys))))
         self.timing = {}
+        # a limit only the validation records reach (fonbw.gap.beyond)
+        self.beyond = None
 
     def identification_records(self):
         """The decimated training records the nominal FONBW is identified on.
@@ -507,15 +510,19 @@ class Diagnosis(GreedySteps):
             c["accepted"] = c["effect"] in self.accepted
         at_bounds = self.nominal_at_bounds()
         self.steps.append({"label": "noise floor", "rms_validate": math.sqrt(self.sigma2)})
+        params = self.att["fitter"].effect_params(self.current["fit"], self.current["eff"])
+        beyond = self.beyond
+        named = [beyond["effect"]] if beyond and beyond["effect"] else []
+        if named:
+            params[named[0]] = beyond["params"]
         verdict = selection.verdict(
-            self.accepted, mse0=self.mse0, mse=self.current["mse"], excess0=self.excess0,
-            at_floor=self.at_floor, steps=self.steps, coverage=self.coverage,
-            params=self.att["fitter"].effect_params(self.current["fit"], self.current["eff"]),
+            self.accepted + named, mse0=self.mse0, mse=self.current["mse"], excess0=self.excess0,
+            at_floor=self.at_floor, steps=self.steps, coverage=self.coverage, params=params,
             form=self.form, start=self.rs.report(),
             remaining=checks.remaining(self.val_s, self.current["pred"], self.sigma2, self.coverage),
             at_bounds=at_bounds, later_steps=self.later_steps,
             tones=tones(self.val_s, self.current["pred"], self.dt, self.sigma2),
-            step_edges=self.edges.summary(), within_rates=self.within_rates)
+            step_edges=self.edges.summary(), within_rates=self.within_rates, beyond=beyond)
         self.timing["total_s"] = time.perf_counter() - self.t_start
         given = self.model_given
         nominal = {
@@ -568,6 +575,7 @@ class Diagnosis(GreedySteps):
             self.form_stage()
             self.attribute()
             fm.judge_on_effects(self)
+            beyond_training(self)
         self.pool = None
         return self.result()
 

@@ -11,7 +11,7 @@ import math
 
 from .checks import flag_text
 
-__all__ = ["pick_best", "retry_pool", "verdict", "form_text", "EXPLAINED"]
+__all__ = ["pick_best", "retry_pool", "verdict", "form_text", "beyond_text", "EXPLAINED"]
 
 #: Share of the excess gap the form and the effects must close together for
 #: a verdict not to be "unexplained" (most of the gap).
@@ -89,7 +89,7 @@ def retry_pool(pool, chosen, results, first_step):
 
 def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
             form=None, start=None, remaining=None, at_bounds=None, later_steps=None, tones=None,
-            step_edges=None, within_rates=None):
+            step_edges=None, within_rates=None, beyond=None):
     """The verdict of a diagnosis.
 
     Parameters
@@ -145,6 +145,10 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         both as measured at the greedy step that accepted it, on the
         reference nominal (also when a form revoked later leaves the final
         configuration FONBW's).
+    beyond : dict, optional
+        The limit cross-fitted on the validation records beyond the training
+        range (:func:`fonbw.gap.beyond.beyond_training`), reported as it is;
+        its ``effect``, when named, is the last of `accepted`.
 
     Returns
     -------
@@ -153,7 +157,7 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         ``unexplained``, ``at_noise_floor``, ``steps``, ``waterfall``,
         ``form``, ``start``, ``coverage``, ``remaining``, ``params``,
         ``later_steps``, ``tones``, ``step_edges``, ``within_training_rates``,
-        ``message``.
+        ``beyond_training``, ``message``.
     """
     total = (mse0 - mse) / excess0 if excess0 > 0 and not at_floor else 0.0
     # the waterfall counts from the nominal's RMS as it reports it, so that the
@@ -188,6 +192,7 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         "tones": list(tones or []),
         "step_edges": step_edges,
         "within_training_rates": dict(within_rates or {}),
+        "beyond_training": beyond,
     }
     named = (["the hysteresis form"] if form_named else []) + out["effects"]
     if at_floor:
@@ -203,6 +208,8 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
                            f"the training records' input rates ({', '.join(w['records'])}) and "
                            f"{w['gap_closed_all']:.2f} on all: the faster ones, where the models extrapolate, "
                            "do not show it")
+    if not at_floor and beyond and beyond["effect"]:
+        out["message"] += "; " + beyond_text(beyond)
     if not at_floor and total < 0.9:
         out["message"] += _left_text(out["remaining"], at_bounds, out["unexplained"]) + _tone_text(out["tones"])
     if start and start.get("mid_drive"):
@@ -237,6 +244,16 @@ def form_text(form):
         text += (f"; mostly in {wh['dominant']} (top {wh['top']:.2f}, bottom {wh['bottom']:.2f}, minor loops "
                  f"{wh['minor_loops']:.2f} of the correction's energy)")
     return text
+
+
+def beyond_text(beyond):
+    """The limit named beyond the training range, in words (the verdict's message)."""
+    p, name = beyond["params"], beyond["effect"]
+    what = (f"a rail at {p['level']:.4g} V (knee {p['knee']:.2g} V)" if name == "clip" else
+            f"a stroke limit at {p['knee']:.4g} µm (slope factor {1 + p['c']:.2g} above it)")
+    return (f"{name}: {what}, beyond the training range, closes {beyond['gap_closed']:.2f} of what the "
+            f"model left, chosen on alternate {beyond['fold_s']:g}-s blocks of the validation records and "
+            "scored on the others; no training record reaches it, and one that did would confirm it")
 
 
 def outcome_text(c):
