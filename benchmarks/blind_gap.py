@@ -302,7 +302,8 @@ def _timing(seed, budget, family=None):
     wall = time.perf_counter() - t0
     print(f"{n} samples ({n * sc['train'][0].dt:.1f} s at {1 / sc['train'][0].dt:.0f} Hz), "
           f"{sc['family']} core, injected {list(sc['injected'])}, named {res['verdict']['effects']}: wall {wall:.0f} s "
-          f"(nominal {res['timing']['nominal_s']:.0f} s, attribution {res['timing']['attribute_s']:.0f} s); "
+          f"(nominal {res['timing']['nominal_s']:.0f} s, attribution {res['timing']['attribute_s']:.0f} s, "
+          f"beyond the training range {res['timing'].get('beyond_s', 0.0):.1f} s); "
           f"load average before/after: {os.getloadavg()[0]:.1f}")
 
 

@@ -6,8 +6,10 @@ import pytest
 
 import gap_truth as tr
 from fonbw.gap import diagnose
-from fonbw.gap.beyond import FOLD_S, SHARE, cross_fit, folds, pick
+from fonbw.gap import effects as fx
+from fonbw.gap.beyond import FOLD_S, SHARE, _rail, _stroke_limit, cross_fit, folds, pick
 from fonbw.gap.checks import LATE_DROP
+from fonbw.gap.selection import outcome_text
 from fonbw.io import Record
 
 FAST = dict(budget=500, global_evals=160, refit_evals=45)
@@ -50,6 +52,49 @@ def test_pick_names_the_best_unrefused_limit_that_closes_half_and_one_noise_vari
     assert pick({"saturation": t(0.9, "a bend")}, mse, s2) is None
 
 
+class _Identity:
+    """A diagnosis whose model is the (clipped) command itself: y = v [µm per V]."""
+
+    def __init__(self, u, dt):
+        self.val = [Record.from_arrays(u=u, y=np.zeros_like(u), dt=dt)]
+        self.current = {"fit": {"th": []}, "eff": []}
+        self.att = {"fitter": self, "yref_va": None}
+
+    def predict(self, records, fit, effects, yrefs):
+        out = []
+        for r in records:
+            v = r.u
+            for e, th in zip(effects, fit["th"]):
+                v = e.transform_input(v, r.dt, th)
+            out.append(v)
+        return out
+
+    @staticmethod
+    def cut_va(preds):
+        return preds
+
+
+@pytest.mark.parametrize("level, refused", [(117.0, False), (121.0, True)])
+def test_a_rail_at_the_drives_top_is_a_bend(level, refused):
+    # a 1-Hz sine to 120 V over 2 s; the training drives stopped at 114.8 V
+    dt = 1e-3
+    t = np.arange(2000) * dt
+    u = 60.0 - 60.0 * np.cos(2 * np.pi * t)
+    clip = fx.Clip(114.8)
+    d = _Identity(u, dt)
+    y = clip.transform_input(u, dt, (level, 0.3))
+    ctx = {"y": y, "u": u, "fold": folds(d.val), "u_train": 114.8}
+    (pred, chosen), why = _rail(clip, d, ctx)
+    top = chosen[0]["level"]
+    if refused:
+        # a rail above the drive bends its top only: the grid's top level fits it best
+        assert top == 120.0 and "a bend of the loop" in why
+    else:
+        # the grid's level nearest 117 V (levels 111.36-120 V in steps of 0.96 V)
+        assert abs(top - level) < 0.5 and why is None
+        assert np.sqrt(np.mean((pred - y) ** 2)) < 0.3
+
+
 @pytest.fixture(scope="module")
 def rail_beyond_training():
     # training commands stop at 114.8 V, the validation sines reach 120 V: a
@@ -62,16 +107,17 @@ def rail_beyond_training():
     truth.effects = {"clip": rail}
     train = [truth.record(u, n, i) for i, (n, u) in enumerate(tr_in)]
     val = [truth.record(u, n, 50 + i) for i, (n, u) in enumerate(va_in)]
-    return rail, diagnose(train, val, seed=2, **FAST).to_dict()
+    return rail, (train, val), diagnose(train, val, seed=2, **FAST).to_dict()
 
 
 def test_a_rail_only_the_validation_records_reach_is_named_beyond_training(rail_beyond_training):
-    rail, res = rail_beyond_training
+    rail, _, res = rail_beyond_training
     v, b = res["verdict"], res["verdict"]["beyond_training"]
     assert b["effect"] == "clip" and v["effects"][-1] == "clip"
-    # the training-fitted clip cannot see it: its level stays above every training command
+    # the training-fitted clip cannot see it; its entry says where it was named
     first = next(c for c in res["candidates"] if c["effect"] == "clip")
-    assert not first["accepted"]
+    assert first["checks"]["failed"] and first["accepted"] and first["beyond_training"]
+    assert outcome_text(first).startswith("yes, beyond the training range (on the training records: ")
     assert b["params"]["level"] == pytest.approx(rail["hi"], abs=1.0)
     assert b["gap_closed"] >= SHARE and b["tried"]["clip"]["gap_closed"] == b["gap_closed"]
     # the waterfall's last step before the floor is the limit, at the verdict's MSE
@@ -82,3 +128,30 @@ def test_a_rail_only_the_validation_records_reach_is_named_beyond_training(rail_
     s2 = res["nominal"]["noise_floor"] ** 2
     before = v["waterfall"][-3]["rms_validate"] ** 2
     assert before - st["rms_validate"] ** 2 >= LATE_DROP * s2
+
+
+def test_a_limit_left_out_of_the_library_is_not_tried_beyond_training(rail_beyond_training):
+    # the same records, with the library cut to creep: the stage must not
+    # name (or fit) a block the caller left out
+    _, (train, val), _ = rail_beyond_training
+    v = diagnose(train, val, seed=2, effects=("creep",), **FAST).to_dict()["verdict"]
+    assert "clip" not in v["effects"] and v["beyond_training"] is None
+
+
+@pytest.mark.parametrize("c, refused", [(-0.95, False), (-0.3, True)])
+def test_a_stroke_limit_is_cross_fitted_on_the_models_output(c, refused):
+    # the model's output z: a 1-Hz sine from 0 to 30 µm; the records flattened above 27 µm
+    dt = 1e-3
+    t = np.arange(2000) * dt
+    z = 15.0 - 15.0 * np.cos(2 * np.pi * t)
+    knee, w = 27.0, 0.3
+    y = z + c * w * np.logaddexp(0.0, (z - knee) / w)      # softplus, written apart from the block
+    sat = fx.Saturation(0.0, 25.0)
+    rec = Record.from_arrays(u=z, y=y, dt=dt)
+    ctx = {"y": y, "z": z, "fold": folds([rec])}
+    (pred, chosen), why = _stroke_limit(sat, None, ctx)
+    # 25 knees from the median (15 µm) to the top (30 µm): 0.625 µm apart
+    assert all(abs(p["knee"] - knee) < 0.7 for p in chosen)
+    assert all(p["c"] == pytest.approx(c, abs=0.1) for p in chosen)
+    assert np.sqrt(np.mean((pred - y) ** 2)) < 0.05
+    assert (why is not None) == refused

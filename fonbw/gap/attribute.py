@@ -195,7 +195,9 @@ class Diagnosis(GreedySteps):
     steps, each :meth:`try_candidates` — :meth:`refit_candidate` and
     :meth:`check_candidate` per effect — then :func:`fonbw.gap.selection.pick_best`),
     the form judged on top of the accepted effects
-    (:func:`fonbw.gap.form.judge_on_effects`) and :meth:`result`. Every stage
+    (:func:`fonbw.gap.form.judge_on_effects`), a limit that only the validation
+    records reach (:func:`fonbw.gap.beyond.beyond_training`) and
+    :meth:`result`. Every stage
     draws its random numbers from `seed` alone, so a seed gives the same
     result bit for bit.
     """
@@ -506,13 +508,16 @@ class Diagnosis(GreedySteps):
 
     def result(self):
         """The :class:`DiagnosisResult` of the finished stages."""
+        beyond = self.beyond
+        named = [beyond["effect"]] if beyond and beyond["effect"] else []
         for c in self.candidates:
-            c["accepted"] = c["effect"] in self.accepted
+            c["accepted"] = c["effect"] in self.accepted + named
+            if c["effect"] in named:
+                # its training fit failed; the verdict names it from the validation records
+                c["beyond_training"] = True
         at_bounds = self.nominal_at_bounds()
         self.steps.append({"label": "noise floor", "rms_validate": math.sqrt(self.sigma2)})
         params = self.att["fitter"].effect_params(self.current["fit"], self.current["eff"])
-        beyond = self.beyond
-        named = [beyond["effect"]] if beyond and beyond["effect"] else []
         if named:
             params[named[0]] = beyond["params"]
         verdict = selection.verdict(

@@ -482,6 +482,8 @@ class Saturation(Effect):
     #: 43027: 0.91 against 0.79, drop 46 %; the other three, 35005, 37003 and
     #: 42010, barely reached the training records, under 1.1 σ there).
     overruled_by = "clip"
+    #: Corner widths the knee's grid tries, as shares of the displacement span.
+    width_shares = (0.003, 0.02, 0.08)
 
     def __init__(self, y_lo, y_hi):
         super().__init__()
@@ -489,7 +491,7 @@ class Saturation(Effect):
         self.bounds = [(y_lo + 0.3 * span, y_hi), (1e-3 * span, 0.2 * span)]
         self.log_scale = [False, True]
         knees = np.linspace(y_lo + 0.35 * span, y_hi - 0.02 * span, 10)
-        widths = span * np.array([0.003, 0.02, 0.08])
+        widths = span * np.array(self.width_shares)
         self.grid = np.array([(k, w) for k in knees for w in widths])
 
     @staticmethod
@@ -538,6 +540,8 @@ class Clip(Effect):
     # 28015, 28039), the clips that were not there at 1.109 and 1.248
     # (27018, 28032)
     loro_slack = 0.02
+    #: Knee widths the grid tries, as shares of the largest training command U.
+    knee_shares = (0.003, 0.015)
 
     def __init__(self, U):
         super().__init__()
@@ -545,7 +549,7 @@ class Clip(Effect):
         self.bounds = [(0.4 * U, 1.1 * U), (1e-3 * U, 0.05 * U)]
         self.log_scale = [False, True]
         levels = np.r_[np.linspace(0.6 * U, 1.0 * U, 11), 1.1 * U]
-        self.grid = np.array([(a, b) for a in levels for b in (0.003 * U, 0.015 * U)])
+        self.grid = np.array([(a, b) for a in levels for b in (k * U for k in self.knee_shares)])
 
     def identified(self, th):
         # a rail above every command the records reach is no rail

@@ -450,8 +450,9 @@ def _keep_or_revoke(d):
 
 
 def _name_after(d):
-    # a material form becomes the waterfall's last step before the floor: it
-    # was found after the effects, and the waterfall shows what was measured
+    # a material form becomes the waterfall's step after the effects (only a
+    # limit beyond the training range, fonbw.gap.beyond, may follow): it was
+    # found after them, and the waterfall shows what was measured
     cur = d.current
     ref_att = d.reference_att()
     out, ref_s = form_after_effects(d, cur, ref_att)

@@ -251,17 +251,21 @@ def beyond_text(beyond):
     p, name = beyond["params"], beyond["effect"]
     what = (f"a rail at {p['level']:.4g} V (knee {p['knee']:.2g} V)" if name == "clip" else
             f"a stroke limit at {p['knee']:.4g} µm (slope factor {1 + p['c']:.2g} above it)")
-    return (f"{name}: {what}, beyond the training range, closes {beyond['gap_closed']:.2f} of what the "
-            f"model left, chosen on alternate {beyond['fold_s']:g}-s blocks of the validation records and "
-            "scored on the others; no training record reaches it, and one that did would confirm it")
+    return (f"{name}: {what} closes {beyond['gap_closed']:.2f} of what the model left, fitted on the "
+            f"validation records where they go past the training range (chosen on alternate "
+            f"{beyond['fold_s']:g}-s blocks and scored on the others); a training record that reaches it "
+            "would confirm it")
 
 
 def outcome_text(c):
     """What became of a candidate entry (``accepted``, ``checks``), in words
     (the demo's report and the HTML report). A first-step entry is accepted
-    when the verdict names the effect, whichever step added it."""
+    when the verdict names the effect, whichever step added it, or when it
+    was named beyond the training range (``beyond_training``)."""
     ch = c.get("checks") or {}
     failed = ch.get("failed")
+    if c["accepted"] and c.get("beyond_training"):
+        return f"yes, beyond the training range (on the training records: {failed or 'passed'})"
     if c["accepted"]:
         return f"yes, at a later step (here: {failed})" if failed else "yes"
     if failed:
