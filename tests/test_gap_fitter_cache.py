@@ -119,3 +119,17 @@ def test_single_thread_keeps_the_numbers_and_restores_the_thread_counts():
     N2 = np.array([[0.0, 3.0], [0.0, 0.0]])
     with single_thread():
         np.testing.assert_allclose(scipy.linalg.expm(N2), [[1.0, 3.0], [0.0, 1.0]], rtol=1e-14, atol=1e-15)
+
+
+def test_a_fit_without_coefficients_predicts_nan_not_a_crash():
+    # a refit whose training design was not finite has beta None and rms inf;
+    # a blind-harness scenario (seed 49007) crashed in the form's check on it
+    recs, space, x, f = _setup()
+    creep = fx.Creep(DT, 1.0)
+    fit = {"x": x, "th": [np.zeros(0)], "beta": None, "rms": float("inf")}
+    out = f.predict(recs, fit, [creep], [r.y for r in recs])
+    assert [len(o) for o in out] == [len(r.u) for r in recs]
+    assert all(np.isnan(o).all() for o in out)
+    # with coefficients the same call gives finite outputs
+    good = f.refit([creep], x, [np.zeros(0)], [r.y for r in recs], evals=0)
+    assert all(np.isfinite(o).all() for o in f.predict(recs, good, [creep], [r.y for r in recs]))

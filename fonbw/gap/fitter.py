@@ -498,7 +498,12 @@ class Fitter:
                 "nfev": nfev + 1}
 
     def predict(self, records, fit, effects, yrefs):
-        """Outputs [µm] of a fitted configuration on `records` (list of arrays)."""
+        """Outputs [µm] of a fitted configuration on `records` (list of arrays);
+        NaN throughout for a fit with no coefficients (:meth:`refit` of a
+        configuration whose training design is not finite: rms inf), which the
+        callers take as a model that diverges."""
+        if fit["beta"] is None:
+            return [np.full(len(r.u), np.nan) for r in records]
         X = fit["x"][None, :]
         TH = [t[None, :] for t in fit["th"]]
         A = self.design(records, X, effects, TH, yrefs)[0]
