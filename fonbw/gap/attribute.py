@@ -461,7 +461,7 @@ class Diagnosis(GreedySteps):
         self.loc = localize(val, self.p0_va, self.dt, self.sigma2)
         self.mse0 = checks.mse(val, self.p0_va)
         self.excess0 = self.mse0 - self.sigma2
-        self.at_floor = self.mse0 <= (1.0 + self.floor_tol) * self.sigma2
+        self.at_floor = checks.at_floor(self.mse0, self.sigma2, self.floor_tol)
         self.coverage = checks.coverage(self.rs.raw["train"], self.rs.raw["validate"], self.dt)
         self.say(f"noise floor σ = {math.sqrt(self.sigma2):.4g} µm, validation rms "
                  f"{math.sqrt(self.mse0):.4g} µm" + (" (at the floor)" if self.at_floor else ""))

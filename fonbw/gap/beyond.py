@@ -166,7 +166,7 @@ def _stroke_limit(sat, d, ctx):
         return {"knee": k, "width": w, "c": c}, z + c * shapes[(k, w)]
     out = cross_fit(y, ctx["fold"], choose)
     # the block's own rule on each fold's fit: a top that only bends is loop shape
-    refused = next((sat.refuses(p) for p in out[1] if sat.refuses(p) is not None), None)
+    refused = next((why for why in map(sat.refuses, out[1]) if why is not None), None)
     return out, refused
 
 
@@ -187,7 +187,7 @@ def beyond_training(d):
     cur, sigma2 = d.current, d.sigma2
     left = cur["mse"] - sigma2
     # credited only for what the model leaves above the floor, as a greedy step
-    if d.at_floor or cur["mse"] <= (1.0 + d.floor_tol) * sigma2 or len(d.accepted) >= d.max_effects:
+    if d.at_floor or checks.at_floor(cur["mse"], sigma2, d.floor_tol) or len(d.accepted) >= d.max_effects:
         return
     t0 = time.perf_counter()
     y = np.concatenate([r.y for r in d.val_s])

@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-__all__ = ["CONDITIONS", "RATE_CONDITIONS", "AMPLITUDE_TOL", "MIN_DROP", "LATE_SHARE", "LATE_DROP", "BIC_EVIDENCE",
+__all__ = ["at_floor", "CONDITIONS", "RATE_CONDITIONS", "AMPLITUDE_TOL", "MIN_DROP", "LATE_SHARE", "LATE_DROP", "BIC_EVIDENCE",
            "OWN_SHARE", "material", "bic_change", "lacks_evidence", "coverage", "longest_run", "flag_text",
            "loro_passes", "remaining", "mse", "bootstrap", "loro"]
 
@@ -266,6 +266,12 @@ def _beyond_range(u, e2, sigma2, excess, flags):
         out |= u < lim["u_min"]
     part = float(np.sum(e2[out])) - int(out.sum()) * sigma2
     return {"samples": float(out.mean()), "gap": min(max(part / excess, 0.0), 1.0) if excess > 0 else 0.0}
+
+
+def at_floor(mse, sigma2, tol):
+    """Whether a validation MSE [µm²] is at the noise floor σ² [µm²]: within
+    (1 + `tol`) σ². Nothing is credited for a gap there (false for NaN)."""
+    return mse <= (1.0 + tol) * sigma2
 
 
 def mse(records, preds):

@@ -126,8 +126,8 @@ class Effect:
     overruled_by: str | None = None
     search_seeds = 1
     #: How far above 1 the pooled leave-one-record-out ratio may lie
-    #: (:func:`fonbw.gap.checks.loro`) for the block to pass; below zero, by
-    #: more than how much the held-out records must fit better.
+    #: (:func:`fonbw.gap.checks.loro`) for the block to pass; below zero, the
+    #: share of their error by which the held-out records must fit better (strictly).
     loro_slack = 0.0
 
     def __init__(self):

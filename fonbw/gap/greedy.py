@@ -344,7 +344,7 @@ class GreedySteps:
         pool = list(range(len(lib)))
         for step in range(self.max_effects):
             # an effect is credited only for what the better nominal leaves
-            if self.current["mse"] <= (1.0 + self.floor_tol) * self.sigma2 or not pool:
+            if checks.at_floor(self.current["mse"], self.sigma2, self.floor_tol) or not pool:
                 break
             results = self.try_candidates(step, pool, t0)
             self._overrule(step, results)
