@@ -584,6 +584,28 @@ def test_the_passing_candidate_with_the_best_training_fit_is_accepted():
     assert pick_best([cand("drift", 0.5, -1e5, passed=False)]) is None
 
 
+def test_between_a_rail_and_a_stroke_limit_the_validation_share_decides():
+    from fonbw.gap.selection import pick_best
+
+    def cand(name, gc, dbic, passed=True):
+        return {"name": name, "range_limit": name in ("clip", "saturation"),
+                "checks": {"passed": passed, "gap_closed_step": gc, "delta_bic": dbic, "identified": True}}
+
+    # spent blind-harness steps: a stroke limit the training records reach
+    # at 0.5 σ, refit beside a delay (seed 49013, second step), and a rail on
+    # a FONBW core (48009); the other limit fitted the training records better
+    assert pick_best([cand("saturation", 0.153, -2040), cand("clip", 0.131, -3435)])["name"] == "saturation"
+    assert pick_best([cand("clip", 0.815, -11334), cand("saturation", 0.487, -11635)])["name"] == "clip"
+    # only passing limits compete; a block that is no limit keeps its win on
+    # the training fit, and a limit that wins there does not yield to it
+    assert pick_best([cand("clip", 0.2, -3e3), cand("saturation", 0.6, -1e3, passed=False)])["name"] == "clip"
+    mixed = [cand("delay", 0.5, -9e4), cand("clip", 0.7, -3e4), cand("saturation", 0.8, -2e4)]
+    assert pick_best(mixed)["name"] == "delay"
+    mixed[0]["checks"]["delta_bic"] = -1e3
+    assert pick_best(mixed)["name"] == "saturation"
+    assert pick_best([cand("clip", 0.5, -9e4), cand("drift", 0.9, -1e4)])["name"] == "clip"
+
+
 def test_a_failed_candidate_says_which_check_it_failed_first():
     from fonbw.gap.greedy import _failed_check
 

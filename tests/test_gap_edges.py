@@ -394,6 +394,44 @@ def test_a_delay_searched_again_is_the_block_the_later_steps_refit():
     assert me.candidates[1]["checks"]["searched_within_s"] == [lo, hi]
     assert me.later_steps[0]["on_top_of"] == ["delay"] and me.later_steps[0]["accepted"] == "amplifier"
 
+def test_the_greedy_steps_let_the_validation_records_decide_between_two_limits():
+    # a stroke limit the training records reach at 0.5 σ (blind-harness
+    # seed 49013, second step): the rail fits them better, the stroke limit
+    # closes more of the validation gap and is accepted
+    from fonbw.gap.effects import Clip, Saturation
+    from fonbw.gap.greedy import GreedySteps
+
+    figures = {"saturation": (0.153, -2040.0), "clip": (0.131, -3435.0), "delay": (0.0, 10.0)}
+
+    class Steps(GreedySteps):
+        def map(self, fn, items, on_result=None):
+            return [fn(x) for x in items]
+
+        def refit_candidate(self, active, start, att=None, lib=None):
+            return {"th": [b.grid[0] for b in (self.lib[i] for i in active)], "rms": 0.01}, None, 0.005
+
+        def check_candidate(self, i, step, fit, pv, mse, eff):
+            gc, dbic = figures[eff[-1].name]
+            ok = gc > 0.1
+            return {"gap_closed_step": gc, "delta_bic": dbic, "refused": None, "passed": ok,
+                    "failed": None if ok else "closes too little", "identified": True}
+
+    me = Steps()
+    me.lib = [Clip(120.0), Saturation(0.0, 20.0), Delay(DT)]
+    me.rs = SimpleNamespace(raw={"train": _records(_delayed(6))})
+    me.dt, me.sigma2, me.mse0, me.max_effects, me.floor_tol, me.tie_margin = DT, 1e-6, 0.01, 1, 0.2, math.inf
+    me.att = {"base": {"rms": 0.1, "th": []}, "mse": 0.01, "pred": None, "core": "reference",
+              "fitter": SimpleNamespace(effect_params=lambda fit, eff: {b.name: {} for b in eff})}
+    me.timing, me.say = {}, lambda *a: None
+    me.attribute()
+    assert me.accepted == ["saturation"]
+    # the same figures for two blocks that are no limits: the training fit decides
+    me.lib = [Delay(DT), Amplifier(DT, 120.0)]
+    figures.update(delay=(0.131, -3435.0), amplifier=(0.153, -2040.0))
+    me.attribute()
+    assert me.accepted == ["delay"]
+
+
 def test_the_report_gives_the_edges_and_their_dead_time():
     a = math.exp(-DT / 0.01)
     first = (0.4 + 0.6 * (1.0 - a)) / (0.4 + 0.6 * (1.0 - a ** (SETTLE + 1)))

@@ -102,6 +102,11 @@ class Effect:
         it is searched again over the delays they accept (it then has a
         method ``within(lo, hi)`` giving the block so bounded), and where
         they hold a dead time it may be judged within the training rates.
+    range_limit : bool
+        The block acts only where the drive or the displacement reaches the
+        top of its range (a rail, a stroke limit): between two such blocks
+        that pass, the validation records decide
+        (:func:`fonbw.gap.selection.pick_best`).
     overruled_by : str or None
         The block whose passing at the same greedy step, closing less, shows
         that what :meth:`refuses` took for something imitated is in the
@@ -123,6 +128,7 @@ class Effect:
     edges_left_most: float | None = None
     edges_who = ""
     transport_delay = False
+    range_limit = False
     overruled_by: str | None = None
     search_seeds = 1
     #: How far above 1 the pooled leave-one-record-out ratio may lie
@@ -447,6 +453,7 @@ class Saturation(Effect):
     lin_names = ("c",)
     units = {"knee": "µm", "width": "µm", "c": "1"}
     output_nonlinear = True
+    range_limit = True
     #: c ≤ 0: a stroke limit only lowers the slope. A top that steepens is no
     #: limit but loop shape (a Prandtl–Ishlinskii envelope bending up), which
     #: a free sign would credit to this block.
@@ -533,6 +540,7 @@ class Clip(Effect):
     names = ("level", "knee")
     units = {"level": "V", "knee": "V"}
     input_side = True
+    range_limit = True
     # A rail acts only where a command reaches it, and a held-out record is
     # scored only over the displacements the other records span, so the check
     # sees little of what the rail does: true clips of 0.34-0.97 gap closed

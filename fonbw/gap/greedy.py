@@ -241,7 +241,7 @@ class GreedySteps:
         done = self.map(one, items, on_result=lambda k, r: said(order[k], r))
         by_i = dict(zip(items, done))
         return [{"i": i, "fit": by_i[i][0], "pv": by_i[i][1], "mse": by_i[i][2], "eff": cur["eff"] + [by_i[i][4]],
-                 "checks": by_i[i][3]} for i in pool]
+                 "checks": by_i[i][3], "range_limit": self.lib[i].range_limit} for i in pool]
 
     def _overrule(self, step, results):
         """Check again, without its own refusal, each candidate of a greedy
