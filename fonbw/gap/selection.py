@@ -70,7 +70,7 @@ def pick_best(results, tie_margin=math.inf):
     # tells them apart. On the 22 greedy steps of 199 spent blind-harness
     # scenarios (seeds 45000-49039) where both passed, the one closing more
     # was an injected limit 20 times, the better training fit 16 times
-    # (BENCHMARKS.md, "A rail or a stroke limit").
+    # (BENCHMARKS.md, "A rail or a stroke limit: the validation records decide").
     if best.get("range_limit"):
         best = max((r for r in ok if r.get("range_limit")), key=lambda r: r["checks"]["gap_closed_step"])
     return best
