@@ -240,6 +240,21 @@ def test_clip_block_is_a_smooth_rail():
     assert c.input_side and c.identified((100.0, 1.0)) and not c.identified((130.0, 1.0))
 
 
+def test_a_rail_with_a_knee_over_a_fortieth_of_the_drive_is_refused():
+    from fonbw.gap import effects as fx
+
+    # fits of spent blind-harness scenarios, largest training command 114.77 V:
+    # a Preisach null's top bent by a soft rail (seed 49005) and an injected
+    # 12.5 σ rail (48038)
+    c = fx.Clip(114.77)
+    why = c.refuses({"level": 126.24, "knee": 5.392})
+    assert why is not None and "5.39 V" in why and "2.87 V" in why
+    assert c.refuses({"level": 110.26, "knee": 0.1148}) is None
+    assert c.refuses({"level": 110.0, "knee": 2.86}) is None and c.refuses({"level": 110.0, "knee": 2.88})
+    # the grid's knees are all sharp enough
+    assert all(c.refuses({"level": a, "knee": k}) is None for a, k in c.grid)
+
+
 # ---------------------------------------------------------------------------
 # fixed-seed diagnoses per core family (the full run is benchmarks/blind_gap.py)
 

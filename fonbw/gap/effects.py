@@ -550,6 +550,17 @@ class Clip(Effect):
     loro_slack = 0.02
     #: Knee widths the grid tries, as shares of the largest training command U.
     knee_shares = (0.003, 0.015)
+    #: Widest knee of a rail, as a share of U. An amplifier's output stage
+    #: leaves its rail within a few volts of a 100-V swing; a knee spread
+    #: wider compresses the whole top of the drive, which is the loop's own
+    #: bend or a stroke limit's. On 199 spent blind-harness scenarios (seeds
+    #: 45000-49039) the rails accepted with a knee wider than 2.5 % of U were
+    #: injected in one case of eight (45005, a rail the training records did
+    #: not reach); the other seven named a rail for a stroke limit (47000,
+    #: 48002, 46027, 49000, 49038) or for nothing (a Preisach null, 49005;
+    #: a 0.4 σ drift, 46005). The 16 other rails accepted where one was
+    #: injected had knees of 0.11-1.75 V (BENCHMARKS.md, "A rail is sharp").
+    knee_max_share = 0.025
 
     def __init__(self, U):
         super().__init__()
@@ -562,6 +573,13 @@ class Clip(Effect):
     def identified(self, th):
         # a rail above every command the records reach is no rail
         return bool(th[0] < self.U)
+
+    def refuses(self, params):
+        most = self.knee_max_share * self.U
+        if params["knee"] > most:
+            return (f"its knee spreads over {params['knee']:.3g} V, more than a rail's {most:.3g} V: "
+                    f"the top of the drive bends, not a rail")
+        return None
 
     def transform_input(self, u, dt, th):
         L, k = float(th[0]), float(th[1])
