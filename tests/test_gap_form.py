@@ -179,7 +179,7 @@ def test_reference_core_matches_the_standalone_bounded_fit():
 def test_reduced_basis_keeps_the_fit_and_spans_the_leading_play_directions():
     from fonbw.gap.cores import ReferenceCore
     from fonbw.gap.fitter import Fitter
-    from fonbw.gap.form import reduced_basis
+    from fonbw.gap.cores import reduced_basis
     from fonbw.gap.reference import ReferenceHysteresis
 
     recs = _pi_records()
@@ -214,6 +214,38 @@ def test_reduced_basis_keeps_the_fit_and_spans_the_leading_play_directions():
     assert res["beta"][0] == pytest.approx(1.0, abs=1e-3)
     with pytest.raises(ValueError, match="one per active column"):
         ReferenceCore(ref, (), active, B[1:])
+
+
+def test_the_reference_loop_solved_beside_a_drift_does_not_take_it_up():
+    from fonbw.gap import form
+    from fonbw.gap.cores import reduced_basis
+    from fonbw.gap.reference import ReferenceHysteresis
+
+    recs = _pi_records()
+    fit = ReferenceHysteresis(n_plays=12, rate=None, level=3).fit(recs)
+    ref, c = fit.reference, fit.weights
+    skip = [100, 0]
+    Phi, _ = form._stack(ref, recs, (), skip)
+    D = form._drift_columns(recs, skip)
+    # the drift block's own law, t counted from each record's start
+    t0 = np.arange(len(recs[0].u))[100:] * recs[0].dt / 10.0
+    np.testing.assert_allclose(D[: t0.size], np.column_stack([t0, t0 * t0]), rtol=1e-12)
+    loop = Phi @ c
+    y = loop + D @ [0.3, -0.1]  # 0.3 µm in 10 s, bending back
+    free = form._drift_free_weights(ref, Phi, y, D)
+    np.testing.assert_allclose(Phi @ free, loop, atol=1e-9 * np.abs(loop).max())
+    # solved alone, the plays take up part of the drift
+    alone = ref.solve(Phi, y)[0]
+    assert np.abs(Phi @ alone - loop).max() > 1e-3
+    # the basis keeps both loops, the drift-free one second
+    active = (c > ref.bounds[0]) | (free > ref.bounds[0]) | ~np.isfinite(ref.bounds[0])
+    npl, q = int(active[:ref.n_play_columns].sum()), int(active.sum())
+    B = reduced_basis(Phi[:, active], alone[active], npl, 4, also=free[active])
+    assert B.shape == (q, 2 + 4 + q - npl)
+    np.testing.assert_array_equal(B[:npl, 0], alone[active][:npl])
+    np.testing.assert_array_equal(B[:npl, 1], free[active][:npl])
+    np.testing.assert_array_equal(B[npl:, 6:], np.eye(q - npl))
+    assert reduced_basis(Phi[:, active], alone[active], npl, npl - 2, also=free[active]) is None
 
 
 def test_fitter_skips_the_burn_in_of_each_record():

@@ -28,7 +28,7 @@ import numpy as np
 
 from .. import hysteresis as hyst
 
-__all__ = ["FonbwCore", "ReferenceCore", "KIND"]
+__all__ = ["FonbwCore", "ReferenceCore", "reduced_basis", "KIND"]
 
 KIND = "fonbw"
 
@@ -115,7 +115,7 @@ class ReferenceCore:
     basis : ndarray, optional
         (n_active, r) combinations of the active columns that the refit
         weighs (default: each active column on its own); see
-        :func:`fonbw.gap.form.reduced_basis`.
+        :func:`reduced_basis`.
     """
 
     name = "reference"
@@ -162,3 +162,52 @@ class ReferenceCore:
             # the cache keeps the record's input alive, so its id stays unique
             self._cache[key] = (rec.u, self.phi(rec.u, rec.dt))
         return [self._cache[key][1]] * len(Us)
+
+
+def reduced_basis(A, c, n_plays, r, also=None):
+    """Combinations of a reference's active columns for the joint refits.
+
+    Parameters
+    ----------
+    A : ndarray
+        (n, q) active columns on the training samples, the first `n_plays`
+        of them plays.
+    c : ndarray
+        (q,) their fitted weights.
+    n_plays : int
+        Active play columns.
+    r : int
+        Play directions kept besides the fitted one.
+    also : ndarray, optional
+        (q,) other fitted weights whose play combination is kept too, second
+        (the weights solved beside a drift: :func:`fonbw.gap.form._drift_free_weights`).
+
+    Returns
+    -------
+    ndarray or None
+        (q, 1 + a + r + q - n_plays): the fitted play combination, the one
+        of `also` (a = 1, or 0 without it), the `r` leading principal
+        directions of the (unit-norm) play columns, and each other column
+        (polynomial, fractional term) on its own; None when that would not
+        be fewer columns.
+
+    The refits keep the fitted loop exactly (the first column) and can
+    still reshape it along the directions the training records excite
+    most, at a cost that no longer grows with the density's resolution.
+    """
+    q = A.shape[1]
+    fitted = [c] if also is None else [c, also]
+    k = len(fitted) + r
+    if k >= n_plays:
+        return None
+    P = A[:, :n_plays]
+    s = np.linalg.norm(P, axis=0)
+    s[s == 0] = 1.0
+    w, V = np.linalg.eigh((P / s).T @ (P / s))
+    V = V[:, np.argsort(w)[::-1][:r]] / s[:, None]
+    B = np.zeros((q, k + q - n_plays))
+    for j, x in enumerate(fitted):
+        B[:n_plays, j] = x[:n_plays]
+    B[:n_plays, len(fitted):k] = V
+    B[n_plays:, k:] = np.eye(q - n_plays)
+    return B

@@ -11,8 +11,10 @@ a :class:`fonbw.gap.attribute.Diagnosis` ``d``:
     columns :data:`REFERENCE_RELAX`, fractional memory
     :data:`REFERENCE_MEMORY`): θ searched on the decimated training records
     beside the creep block's modes (:data:`REFERENCE_SEARCH_RELAX`), weights
-    by bounded least squares at the full rate without them, then the active
-    set fixed (:class:`fonbw.gap.cores.ReferenceCore`).
+    by bounded least squares at the full rate without them, and once more
+    beside the drift block's columns (the loop without a drift, a second
+    direction of the joint refits), then the active set fixed
+    (:class:`fonbw.gap.cores.ReferenceCore`).
 :func:`second_chance`
     when the reference beats FONBW, a longer FONBW identification from
     another seed: an identification that stopped early is neither a form
@@ -53,8 +55,8 @@ import numpy as np
 
 from ..de import jde_minimize
 from . import checks
-from .cores import ReferenceCore
-from .effects import CREEP_TAUS
+from .cores import ReferenceCore, reduced_basis
+from .effects import CREEP_TAUS, Drift
 from .fitter import Fitter, nominal_search
 from .localize import where
 from .selection import EXPLAINED
@@ -83,7 +85,7 @@ REFERENCE_DEGREE = 5
 REFERENCE_LEVEL = 6
 
 #: Play directions the joint refits re-weigh besides the fitted combination
-#: (:func:`reduced_basis`); None: every active play column. Degree 6 leaves
+#: (:func:`fonbw.gap.cores.reduced_basis`); None: every active play column. Degree 6 leaves
 #: 40–65 active columns, and every candidate filters or rebuilds each one
 #: (a dynamics candidate took 41 s instead of 8); 16 directions keep the
 #: refits at about the old cost, with the verdicts of every column on 14
@@ -132,7 +134,7 @@ REFERENCE_SEARCH_RELAX = CREEP_TAUS
 
 __all__ = ["REFERENCE_RATE", "REFERENCE_RELAX", "REFERENCE_MEMORY", "REFERENCE_SEARCH_RELAX", "REFERENCE_DEGREE",
            "REFERENCE_LEVEL", "REFERENCE_DIRECTIONS",
-           "reduced_basis", "fit_reference", "second_chance", "check_form", "form_on_effects", "confirm_form",
+           "fit_reference", "second_chance", "check_form", "form_on_effects", "confirm_form",
            "form_after_effects", "form_alone", "judge_on_effects", "where"]
 
 
@@ -140,6 +142,25 @@ def _stack(ref, recs, theta, skip):
     Phi = np.concatenate([ref.columns(r.u, r.dt, theta)[int(b):] for r, b in zip(recs, skip)])
     y = np.concatenate([r.y[int(b):] for r, b in zip(recs, skip)])
     return Phi, y
+
+
+def _drift_columns(recs, skip):
+    """The drift block's columns on the records, burn-in cut (as in :func:`_stack`)."""
+    drift = Drift()
+    return np.concatenate([drift.columns({"t": np.arange(len(r.u)) * r.dt}, ())[int(b):]
+                           for r, b in zip(recs, skip)])
+
+
+def _drift_free_weights(ref, Phi, y, drift_cols):
+    """The reference's weights solved beside a drift's columns, which are then dropped.
+
+    Fitted alone to records that drift, the plays take up part of the drift
+    and carry it into every joint refit, where the drift block added on top
+    then finds less of it and the reference + drift extrapolates the
+    drift-laden loop. Measured on 21 spent blind-harness scenarios with a
+    drift (BENCHMARKS.md, "A drift-free loop for the reference").
+    """
+    return ref.solve(np.column_stack([Phi, drift_cols]), y, free=drift_cols.shape[1])[0][:Phi.shape[1]]
 
 
 def _search_theta(ref, recs, skip, seed, evals):
@@ -181,12 +202,13 @@ def fit_reference(d, evals=40):
     ref, theta = reference(best[0]), best[1]
     Phi, y = _stack(ref, d.train, theta, d.skip_tr)
     c, _ = ref.solve(Phi, y)
+    c_free = _drift_free_weights(ref, Phi, y, _drift_columns(d.train, d.skip_tr))
     lo = ref.bounds[0]
     # the bounded optimum is the unconstrained one on the columns it leaves free
-    active = (c > lo) | ~np.isfinite(lo)
+    active = (c > lo) | (c_free > lo) | ~np.isfinite(lo)
     basis = (None if REFERENCE_DIRECTIONS is None
              else reduced_basis(Phi[:, active], c[active], int(active[:ref.n_play_columns].sum()),
-                                REFERENCE_DIRECTIONS))
+                                REFERENCE_DIRECTIONS, also=c_free[active]))
     del Phi
     d.ref_core = ReferenceCore(ref, theta, active, basis)
     d.fitter_ref = Fitter(d.train, core=d.ref_core, skip=d.skip_tr)
@@ -200,48 +222,6 @@ def fit_reference(d, evals=40):
     d.timing["reference_s"] = time.perf_counter() - t0
     d.say(f"reference fitted in {d.timing['reference_s']:.1f} s: train rms {d.base_ref['rms']:.4g} µm, "
           f"validation rms {math.sqrt(d.mse_ref):.4g} µm ({int(active.sum())} active columns)")
-
-
-def reduced_basis(A, c, n_plays, r):
-    """Combinations of a reference's active columns for the joint refits.
-
-    Parameters
-    ----------
-    A : ndarray
-        (n, q) active columns on the training samples, the first `n_plays`
-        of them plays.
-    c : ndarray
-        (q,) their fitted weights.
-    n_plays : int
-        Active play columns.
-    r : int
-        Play directions kept besides the fitted one.
-
-    Returns
-    -------
-    ndarray or None
-        (q, 1 + r + q - n_plays): the fitted play combination, the `r`
-        leading principal directions of the (unit-norm) play columns, and
-        each other column (polynomial, fractional term) on its own; None
-        when that would not be fewer columns.
-
-    The refits keep the fitted loop exactly (the first column) and can
-    still reshape it along the directions the training records excite
-    most, at a cost that no longer grows with the density's resolution.
-    """
-    q = A.shape[1]
-    if 1 + r >= n_plays:
-        return None
-    P = A[:, :n_plays]
-    s = np.linalg.norm(P, axis=0)
-    s[s == 0] = 1.0
-    w, V = np.linalg.eigh((P / s).T @ (P / s))
-    V = V[:, np.argsort(w)[::-1][:r]] / s[:, None]
-    B = np.zeros((q, 1 + r + q - n_plays))
-    B[:n_plays, 0] = c[:n_plays]
-    B[:n_plays, 1:1 + r] = V
-    B[n_plays:, 1 + r:] = np.eye(q - n_plays)
-    return B
 
 
 def second_chance(d):

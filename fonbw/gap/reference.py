@@ -99,7 +99,7 @@ every column thousands of times). A density concentrated in its relay
 centres needs more than k = 2: the diagnosis uses k = 6
 (:data:`fonbw.gap.form.REFERENCE_LEVEL`, measured there), and its joint
 refits re-weigh the plays along a few leading directions
-(:func:`fonbw.gap.form.reduced_basis`). On its own truth FONBW is matched by
+(:func:`fonbw.gap.cores.reduced_basis`). On its own truth FONBW is matched by
 ``rate="fractional"``, as it should be. The rate variants: "threshold" alone finds
 the bench's rate law only partly from a training record below 1.5 Hz,
 "fractional" alone finds FONBW's μ = λ1 - λ2 (0.334 for 0.3337); "both"
@@ -456,8 +456,11 @@ class ReferenceHysteresis:
 
     # -- fitting ------------------------------------------------------------
 
-    def solve(self, Phi, y) -> tuple:
+    def solve(self, Phi, y, free=0) -> tuple:
         """Bounded least squares of y ≈ Φ c; returns (c, residual sum of squares [µm²]).
+
+        Φ holds this reference's columns, then `free` more columns whose
+        weights are unbounded (another block's, solved beside the reference's).
 
         The columns are scaled to unit norm and reduced to a p x p triangular
         factor, so the bounded solve (BVLS) costs nothing next to building Φ.
@@ -474,6 +477,7 @@ class ReferenceHysteresis:
         s[s == 0] = 1.0
         A = Phi / s
         lo, hi = self.bounds
+        lo, hi = np.r_[lo, np.full(free, -np.inf)], np.r_[hi, np.full(free, np.inf)]
         G = A.T @ A
         try:
             R = np.linalg.cholesky(G).T
