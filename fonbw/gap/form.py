@@ -157,8 +157,8 @@ def _drift_free_weights(ref, Phi, y, drift_cols):
     Fitted alone to records that drift, the plays take up part of the drift
     and carry it into every joint refit, where the drift block added on top
     then finds less of it and the reference + drift extrapolates the
-    drift-laden loop. Measured on 21 spent blind-harness scenarios with a
-    drift (BENCHMARKS.md, "A drift-free loop for the reference").
+    drift-laden loop (spent blind-harness scenarios: BENCHMARKS.md, "A
+    drift-free loop for the reference").
     """
     return ref.solve(np.column_stack([Phi, drift_cols]), y, free=drift_cols.shape[1])[0][:Phi.shape[1]]
 
