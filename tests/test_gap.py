@@ -1310,15 +1310,17 @@ def test_refit_on_new_training_histories_is_undone_when_it_fits_the_records_at_r
 
 
 def test_a_block_accounts_for_its_own_bic_and_one_that_does_nothing_for_none(monkeypatch):
-    # a 1-ms delay on a FONBW core: the refit leaves the nominal where it was,
-    # so the block accounts for all of its refit's ΔBIC
+    # a 1-ms delay on a FONBW core: the block accounts for at least all of its
+    # refit's ΔBIC, since taken out of the refit it leaves a nominal that fits
+    # no better than the one fitted without it (measured: -20818 against
+    # -17011; the refit moved the nominal to where the delay is needed)
     from fonbw.gap import checks
 
     _, train, val = tr.fixed_case(12, {"delay": {"seconds": 1e-3}}, scale=0.25)
     kw = dict(seed=0, budget=80, refit_evals=10, effects=("delay",), max_effects=1, workers=1)
     ch = diagnose(train, val, **kw)["candidates"][0]["checks"]
     assert ch["passed"] and ch["delta_bic"] < -1000.0
-    assert ch["own_bic"] == pytest.approx(ch["delta_bic"], rel=1e-9)
+    assert ch["own_bic"] <= ch["delta_bic"] + 1e-9 * abs(ch["delta_bic"])
     # made the identity, the block changes no sample: taken out, the fit is the
     # same and its own ΔBIC is exactly its one parameter's penalty, ln n. The
     # refit still lowered the training BIC (by polishing the nominal, which
