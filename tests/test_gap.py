@@ -604,6 +604,13 @@ def test_between_a_rail_and_a_stroke_limit_the_validation_share_decides():
     mixed[0]["checks"]["delta_bic"] = -1e3
     assert pick_best(mixed)["name"] == "saturation"
     assert pick_best([cand("clip", 0.5, -9e4), cand("drift", 0.9, -1e4)])["name"] == "clip"
+    # a rail above every training command (not identified) takes no identified limit's place ...
+    above = cand("clip", 0.9, -1e3)
+    above["checks"]["identified"] = False
+    assert pick_best([cand("saturation", 0.6, -5e3), above])["name"] == "saturation"
+    # ... and yields to one that closes more
+    above["checks"]["delta_bic"] = -9e3
+    assert pick_best([cand("saturation", 0.95, -5e3), above])["name"] == "saturation"
 
 
 def test_a_failed_candidate_says_which_check_it_failed_first():

@@ -394,6 +394,7 @@ def test_a_delay_searched_again_is_the_block_the_later_steps_refit():
     assert me.candidates[1]["checks"]["searched_within_s"] == [lo, hi]
     assert me.later_steps[0]["on_top_of"] == ["delay"] and me.later_steps[0]["accepted"] == "amplifier"
 
+
 def test_the_greedy_steps_let_the_validation_records_decide_between_two_limits():
     # a stroke limit the training records reach at 0.5 σ (blind-harness
     # seed 49013, second step): the rail fits them better, the stroke limit

@@ -237,15 +237,20 @@ def test_the_reference_loop_solved_beside_a_drift_does_not_take_it_up():
     # solved alone, the plays take up part of the drift
     alone = ref.solve(Phi, y)[0]
     assert np.abs(Phi @ alone - loop).max() > 1e-3
-    # the basis keeps both loops, the drift-free one second
-    active = (c > ref.bounds[0]) | (free > ref.bounds[0]) | ~np.isfinite(ref.bounds[0])
+    # the nominal's basis keeps both loops, the drift-free one second
+    active, B = form._reference_basis(ref, Phi, y, D)
+    lo = ref.bounds[0]
+    np.testing.assert_array_equal(active, (alone > lo) | (free > lo) | ~np.isfinite(lo))
     npl, q = int(active[:ref.n_play_columns].sum()), int(active.sum())
-    B = reduced_basis(Phi[:, active], alone[active], npl, 4, also=free[active])
-    assert B.shape == (q, 2 + 4 + q - npl)
-    np.testing.assert_array_equal(B[:npl, 0], alone[active][:npl])
-    np.testing.assert_array_equal(B[:npl, 1], free[active][:npl])
-    np.testing.assert_array_equal(B[npl:, 6:], np.eye(q - npl))
+    r = form.REFERENCE_DIRECTIONS
+    assert B.shape == (q, 2 + r + q - npl)
+    np.testing.assert_allclose(B[:npl, 0], alone[active][:npl], rtol=1e-12, atol=0)
+    np.testing.assert_allclose(B[:npl, 1], free[active][:npl], rtol=1e-12, atol=0)
+    np.testing.assert_array_equal(B[npl:, 2 + r:], np.eye(q - npl))
     assert reduced_basis(Phi[:, active], alone[active], npl, npl - 2, also=free[active]) is None
+    # without a drift the two loops are one: a single column for it
+    active, B = form._reference_basis(ref, Phi, loop, D)
+    assert B.shape[1] == 1 + r + int(active.sum()) - int(active[:ref.n_play_columns].sum())
 
 
 def test_fitter_skips_the_burn_in_of_each_record():

@@ -15,9 +15,11 @@ and the output nonlinearity are appended).
     the generalized Prandtl–Ishlinskii reference of :mod:`fonbw.gap.reference`
     with its rate parameters θ fixed (fitted once by
     :func:`fonbw.gap.form.fit_reference`) and its *active set* fixed: the
-    columns with a positive weight in its bounded fit (and the free ones).
-    On the active set the bounded optimum is the unconstrained least-squares
-    solution, so the refit solves plain least squares. X is empty; Φ of a
+    columns with a positive weight in its bounded fit or in its fit beside
+    a drift (and the free ones). On the bounded fit's own active columns
+    its optimum is the unconstrained least-squares solution, so the refit
+    solves plain least squares; every active column counts in the BIC
+    (:attr:`ReferenceCore.n_params`). X is empty; Φ of a
     record is built once and cached unless an input-side effect changes
     the input. With a ``basis`` the refit re-weights a few fixed
     combinations of the active columns instead of every one of them.
@@ -179,8 +181,9 @@ def reduced_basis(A, c, n_plays, r, also=None):
     r : int
         Play directions kept besides the fitted one.
     also : ndarray, optional
-        (q,) other fitted weights whose play combination is kept too, second
-        (the weights solved beside a drift: :func:`fonbw.gap.form._drift_free_weights`).
+        (q,) other fitted weights whose play combination is kept too,
+        second (the diagnosis's: the weights solved beside a drift's
+        columns, a loop that has not taken the drift up).
 
     Returns
     -------

@@ -156,7 +156,8 @@ class Effect:
         False where the block degenerates into another one (a resonance
         that cannot ring is a lag); the attribution then prefers a tied
         candidate that is identified, or one that fits the training
-        records better.
+        records better (between two limits, one that closes more of the
+        validation gap: :func:`fonbw.gap.selection.pick_best`).
         """
         return True
 

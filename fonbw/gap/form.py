@@ -160,7 +160,31 @@ def _drift_free_weights(ref, Phi, y, drift_cols):
     drift-laden loop (spent blind-harness scenarios: BENCHMARKS.md, "A
     drift-free loop for the reference").
     """
-    return ref.solve(np.column_stack([Phi, drift_cols]), y, free=drift_cols.shape[1])[0][:Phi.shape[1]]
+    return ref.solve(np.column_stack([Phi, drift_cols]), y, n_free=drift_cols.shape[1])[0][:Phi.shape[1]]
+
+
+def _reference_basis(ref, Phi, y, drift_cols):
+    """The reference nominal's active columns and the combinations of them its
+    joint refits weigh (:func:`fonbw.gap.cores.reduced_basis`), from its
+    training columns `Phi`, the records `y` and the drift block's columns.
+
+    Active: the columns with a positive weight in the bounded fit, or in the
+    fit beside the drift (and the unbounded ones). The basis holds the
+    fitted loop and, second, the drift-free one (:func:`_drift_free_weights`)
+    unless the two agree on the training samples to a millionth: two nearly
+    equal columns would make the refits' normal equations singular.
+    """
+    c, _ = ref.solve(Phi, y)
+    c_free = _drift_free_weights(ref, Phi, y, drift_cols)
+    lo = ref.bounds[0]
+    active = (c > lo) | (c_free > lo) | ~np.isfinite(lo)
+    if REFERENCE_DIRECTIONS is None:
+        return active, None
+    q = ref.n_play_columns
+    loop, free = Phi[:, :q] @ c[:q], Phi[:, :q] @ c_free[:q]
+    also = c_free[active] if np.linalg.norm(free - loop) > 1e-6 * np.linalg.norm(loop) else None
+    return active, reduced_basis(Phi[:, active], c[active], int(active[:q].sum()), REFERENCE_DIRECTIONS,
+                                 also=also)
 
 
 def _search_theta(ref, recs, skip, seed, evals):
@@ -201,14 +225,7 @@ def fit_reference(d, evals=40):
             best = (init, theta, rss)
     ref, theta = reference(best[0]), best[1]
     Phi, y = _stack(ref, d.train, theta, d.skip_tr)
-    c, _ = ref.solve(Phi, y)
-    c_free = _drift_free_weights(ref, Phi, y, _drift_columns(d.train, d.skip_tr))
-    lo = ref.bounds[0]
-    # the bounded optimum is the unconstrained one on the columns it leaves free
-    active = (c > lo) | (c_free > lo) | ~np.isfinite(lo)
-    basis = (None if REFERENCE_DIRECTIONS is None
-             else reduced_basis(Phi[:, active], c[active], int(active[:ref.n_play_columns].sum()),
-                                REFERENCE_DIRECTIONS, also=c_free[active]))
+    active, basis = _reference_basis(ref, Phi, y, _drift_columns(d.train, d.skip_tr))
     del Phi
     d.ref_core = ReferenceCore(ref, theta, active, basis)
     d.fitter_ref = Fitter(d.train, core=d.ref_core, skip=d.skip_tr)

@@ -249,8 +249,9 @@ class GreedySteps:
         block overrules: that block passed and closed less of the gap. The
         refusal said the fit imitates something else (a stroke limit that
         only bends the top: the loop's envelope); a passing rival says the
-        records hold what both blocks express, and the two then compete on
-        their fits (:func:`fonbw.gap.selection.pick_best`)."""
+        records hold what both blocks express, and the two then compete
+        (:func:`fonbw.gap.selection.pick_best`: two limits on the validation
+        gap each closes, so the one judged again wins if it passes)."""
         by_name = {self.lib[r["i"]].name: r for r in results}
         for r in results:
             block, ch = self.lib[r["i"]], r["checks"]

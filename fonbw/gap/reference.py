@@ -456,10 +456,10 @@ class ReferenceHysteresis:
 
     # -- fitting ------------------------------------------------------------
 
-    def solve(self, Phi, y, free=0) -> tuple:
+    def solve(self, Phi, y, n_free=0) -> tuple:
         """Bounded least squares of y ≈ Φ c; returns (c, residual sum of squares [µm²]).
 
-        Φ holds this reference's columns, then `free` more columns whose
+        Φ holds this reference's columns, then `n_free` more columns whose
         weights are unbounded (another block's, solved beside the reference's).
 
         The columns are scaled to unit norm and reduced to a p x p triangular
@@ -477,7 +477,7 @@ class ReferenceHysteresis:
         s[s == 0] = 1.0
         A = Phi / s
         lo, hi = self.bounds
-        lo, hi = np.r_[lo, np.full(free, -np.inf)], np.r_[hi, np.full(free, np.inf)]
+        lo, hi = np.r_[lo, np.full(n_free, -np.inf)], np.r_[hi, np.full(n_free, np.inf)]
         G = A.T @ A
         try:
             R = np.linalg.cholesky(G).T

@@ -71,8 +71,12 @@ def pick_best(results, tie_margin=math.inf):
     # scenarios (seeds 45000-49039) where both passed, the one closing more
     # was an injected limit 20 times, the better training fit 16 times
     # (BENCHMARKS.md, "A rail or a stroke limit: the validation records decide").
+    # An identified limit yields only to one that is identified too (a rail
+    # above every training command is no rail).
     if best.get("range_limit"):
-        best = max((r for r in ok if r.get("range_limit")), key=lambda r: r["checks"]["gap_closed_step"])
+        best = max((r for r in ok if r.get("range_limit")
+                    and (r["checks"]["identified"] or not best["checks"]["identified"])),
+                   key=lambda r: r["checks"]["gap_closed_step"])
     return best
 
 
