@@ -343,6 +343,19 @@ def test_a_delay_the_edges_refuse_is_searched_again_within_their_dead_time():
     assert block is delay and len(searched) == 1 and out["refused"] is not None
 
 
+def _stub_steps(me, lib, core, max_effects):
+    """Greedy steps `me` (a subclass whose refits and checks are stubbed) set
+    up on library `lib`, a nominal of kind `core` and the delayed core's
+    training records."""
+    me.lib = lib
+    me.rs = SimpleNamespace(raw={"train": _records(_delayed(6))})
+    me.dt, me.sigma2, me.mse0, me.max_effects, me.floor_tol, me.tie_margin = DT, 1e-6, 0.01, max_effects, 0.2, math.inf
+    me.att = {"base": {"rms": 0.1, "th": []}, "mse": 0.01, "pred": None, "core": core,
+              "fitter": SimpleNamespace(effect_params=lambda fit, eff: {b.name: {} for b in eff})}
+    me.timing, me.say = {}, lambda *a: None
+    return me
+
+
 def test_a_delay_searched_again_is_the_block_the_later_steps_refit():
     # the greedy stage end to end, its refits and checks stood in for: the
     # first step refits the delay two samples short of the 6-sample dead
@@ -374,13 +387,7 @@ def test_a_delay_searched_again_is_the_block_the_later_steps_refit():
             return {"gap_closed_step": 0.5, "delta_bic": -100.0, "refused": refused, "passed": refused is None,
                     "failed": refused, "identified": True}
 
-    me = Steps()
-    me.lib = [amp, delay]
-    me.rs = SimpleNamespace(raw={"train": _records(_delayed(6))})
-    me.dt, me.sigma2, me.mse0, me.max_effects, me.floor_tol, me.tie_margin = DT, 1e-6, 0.01, 3, 0.2, math.inf
-    me.att = {"base": {"rms": 0.1, "th": []}, "mse": 0.01, "pred": None, "core": "fonbw",
-              "fitter": SimpleNamespace(effect_params=lambda fit, eff: {b.name: {} for b in eff})}
-    me.timing, me.say = {}, lambda *a: None
+    me = _stub_steps(Steps(), [amp, delay], "fonbw", max_effects=3)
     me.attribute()
     lo, hi = me.edges.delays_within_dead_time(delay)
     narrowed = me.lib[1]
@@ -417,13 +424,7 @@ def test_the_greedy_steps_let_the_validation_records_decide_between_two_limits()
             return {"gap_closed_step": gc, "delta_bic": dbic, "refused": None, "passed": ok,
                     "failed": None if ok else "closes too little", "identified": True}
 
-    me = Steps()
-    me.lib = [Clip(120.0), Saturation(0.0, 20.0), Delay(DT)]
-    me.rs = SimpleNamespace(raw={"train": _records(_delayed(6))})
-    me.dt, me.sigma2, me.mse0, me.max_effects, me.floor_tol, me.tie_margin = DT, 1e-6, 0.01, 1, 0.2, math.inf
-    me.att = {"base": {"rms": 0.1, "th": []}, "mse": 0.01, "pred": None, "core": "reference",
-              "fitter": SimpleNamespace(effect_params=lambda fit, eff: {b.name: {} for b in eff})}
-    me.timing, me.say = {}, lambda *a: None
+    me = _stub_steps(Steps(), [Clip(120.0), Saturation(0.0, 20.0), Delay(DT)], "reference", max_effects=1)
     me.attribute()
     assert me.accepted == ["saturation"]
     # the same figures for two blocks that are no limits: the training fit decides
