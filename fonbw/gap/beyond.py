@@ -194,10 +194,10 @@ def beyond_training(d):
     u = np.concatenate([r.u for r in d.val_s])
     z = np.concatenate(cur["pred"])
     raw = d.rs.raw["train"]  # the records as measured, without the histories run before them
-    # past the training inputs where the coverage flags say so: the amplitude test is theirs
+    # past the training inputs where the coverage flags say so: the amplitude
+    # test is theirs, and the rail is tried only then
     over = [f["train"] for f in d.coverage if f["condition"] == "u_max"]
-    ctx = {"y": y, "u": u, "z": z, "fold": folds(d.val_s),
-           "u_train": over[0] if over else max(float(r.u.max()) for r in raw),
+    ctx = {"y": y, "u": u, "z": z, "fold": folds(d.val_s), "u_train": over[0] if over else None,
            "y_train": max(float(np.nanmax(r.y)) for r in raw)}
     lib = {e.name: e for e in d.lib}
     blocks = {}
