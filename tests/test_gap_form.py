@@ -241,6 +241,15 @@ def test_the_reference_loop_solved_beside_a_drift_does_not_take_it_up():
     active, B = form._reference_basis(ref, Phi, y, D)
     lo = ref.bounds[0]
     np.testing.assert_array_equal(active, (alone > lo) | (free > lo) | ~np.isfinite(lo))
+    # the eight columns of the true loop that the plain fit traded for the
+    # drift are all active again through the drift-free fit (weights under a
+    # billionth of the largest are rounding, whose sign the BLAS decides)
+    tiny = 1e-9 * c.max()
+    lost = (c > tiny) & ~(alone > tiny)
+    assert np.count_nonzero(lost) == 8 and np.all(active[lost]) and np.all(free[lost] > tiny)
+    # a diagnosis that tries no drift keeps the plain fit's columns alone
+    plain, _ = form._reference_basis(ref, Phi, y, None)
+    np.testing.assert_array_equal(plain, alone > lo)
     npl, q = int(active[:ref.n_play_columns].sum()), int(active.sum())
     r = form.REFERENCE_DIRECTIONS
     assert B.shape == (q, 2 + r + q - npl)

@@ -166,7 +166,8 @@ def _drift_free_weights(ref, Phi, y, drift_cols):
 def _reference_basis(ref, Phi, y, drift_cols):
     """The reference nominal's active columns and the combinations of them its
     joint refits weigh (:func:`fonbw.gap.cores.reduced_basis`), from its
-    training columns `Phi`, the records `y` and the drift block's columns.
+    training columns `Phi`, the records `y` and the drift block's columns
+    (None when the diagnosis tries no drift).
 
     Active: the columns with a positive weight in the bounded fit, or in the
     fit beside the drift (and the unbounded ones). The basis holds the
@@ -175,7 +176,8 @@ def _reference_basis(ref, Phi, y, drift_cols):
     equal columns would make the refits' normal equations singular.
     """
     c, _ = ref.solve(Phi, y)
-    c_free = _drift_free_weights(ref, Phi, y, drift_cols)
+    # the drift-free loop is a direction for the drift block alone
+    c_free = c if drift_cols is None else _drift_free_weights(ref, Phi, y, drift_cols)
     lo = ref.bounds[0]
     active = (c > lo) | (c_free > lo) | ~np.isfinite(lo)
     if REFERENCE_DIRECTIONS is None:
@@ -225,7 +227,8 @@ def fit_reference(d, evals=40):
             best = (init, theta, rss)
     ref, theta = reference(best[0]), best[1]
     Phi, y = _stack(ref, d.train, theta, d.skip_tr)
-    active, basis = _reference_basis(ref, Phi, y, _drift_columns(d.train, d.skip_tr))
+    tries_drift = any(e.name == "drift" for e in d.lib)
+    active, basis = _reference_basis(ref, Phi, y, _drift_columns(d.train, d.skip_tr) if tries_drift else None)
     del Phi
     d.ref_core = ReferenceCore(ref, theta, active, basis)
     d.fitter_ref = Fitter(d.train, core=d.ref_core, skip=d.skip_tr)
