@@ -1,5 +1,5 @@
 """Tests of the blind gap harness (benchmarks/gap_truth.py, gap_effects_truth.py,
-blind_gap.py, gap_summary.py): the FONBW draw of the fixed-seed tests kept (to
+blind_gap.py, gap_summary.py, spent_rows.py): the FONBW draw of the fixed-seed tests kept (to
 rounding), the calibration of effect magnitudes on every core family, the
 amplifier's rail, records that start mid-drive, the per-scenario row and the
 per-family summary on hand-computed rows, and the run on dask against the same
@@ -15,6 +15,7 @@ import gap_cores as gc
 import gap_effects_truth as ge
 import gap_summary as gs
 import gap_truth as tr
+import spent_rows as sr
 import train_magnitudes as tm
 
 SCALE = 0.25
@@ -248,6 +249,40 @@ def test_summary_per_family_on_hand_computed_rows(tmp_path):
     assert "| gap_closed, material in-library (n=4): median / 10th percentile | 0.700 / 0.530 |" in text
     assert "| clip | 0 | 0 | 0 | 1 |" in text
     assert text.count("### ") == 5
+
+
+def _cand(name, passed, gc, dbic, **params):
+    return {"effect": name, "params": params,
+            "checks": {"passed": passed, "gap_closed_step": gc, "delta_bic": dbic}}
+
+
+def test_scans_of_spent_rows_on_hand_made_steps(tmp_path):
+    rows = [
+        # step 1 both limits pass: the rail closes more, the stroke limit fits better; a rail injected
+        {"seed": 1, "family": "pi", "injected": {"clip": {"magnitude": 5.0}}, "named": ["clip", "delay"],
+         "candidates": [_cand("clip", True, 0.8, -100, level=110.0, knee=0.5),
+                        _cand("saturation", True, 0.4, -300, knee=20.0)],
+         "later_steps": [{"on_top_of": ["clip"], "accepted": "delay",
+                          "candidates": [_cand("delay", True, 0.3, -50)]}]},
+        # second step: both pass, the stroke limit closes more and fits better; only 1 σ of it injected
+        {"seed": 2, "family": "rate", "injected": {"saturation": {"magnitude": 1.0}}, "named": ["drift", "clip"],
+         "candidates": [_cand("drift", True, 0.5, -900), _cand("clip", False, 0.1, -10, level=100.0, knee=4.0)],
+         "later_steps": [{"on_top_of": ["drift"], "accepted": "clip",
+                          "candidates": [_cand("clip", True, 0.2, -20, level=112.0, knee=4.0),
+                                         _cand("saturation", True, 0.3, -40)]}]},
+        # a second row of seed 1 (a rerun) is not counted
+        {"seed": 1, "family": "pi", "injected": {}, "named": [], "candidates": []},
+    ]
+    path = tmp_path / "rows.jsonl"
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    rs = sr.rows([str(path)])
+    assert [r["seed"] for r in rs] == [1, 2]
+    lim = sr.contested_limits(rs)
+    assert [(s["seed"], s["step"], s["accepted"]) for s in lim] == [(1, 1, "clip"), (2, 2, "clip")]
+    assert [(s["by_gap_closed"], s["by_delta_bic"], s["injected"]) for s in lim] == [
+        ("clip", "saturation", ["clip"]), ("saturation", "saturation", [])]
+    rails = sr.accepted_rails(rs)
+    assert [(s["seed"], s["step"], s["knee"], s["injected"]) for s in rails] == [(1, 1, 0.5, True), (2, 2, 4.0, False)]
 
 
 def _digest_diagnose(train, validate, seed=0, budget=0, **kw):

@@ -1,0 +1,126 @@
+"""Scans of spent blind-harness rows: what the greedy steps' candidates did.
+
+The rows of ``benchmarks/blind_gap.py`` keep every greedy step's candidates
+with their checks and fitted parameters, so a rule on how candidates are
+chosen can be measured on runs already made before it is written, without
+diagnosing anything again. Two scans:
+
+``limits``
+    the greedy steps where both a rail (``clip``) and a stroke limit
+    (``saturation``) passed every check: which of the two closed more of the
+    validation gap, which fitted the training records better (ΔBIC), and
+    whether that one was injected (at ≥ 2 σ).
+``rails``
+    the rails accepted at a greedy step, with their level and knee [V], and
+    whether a rail was injected.
+
+Usage::
+
+    python benchmarks/spent_rows.py limits held45.jsonl held46.jsonl ...
+    python benchmarks/spent_rows.py rails held45.jsonl held46.jsonl ...
+
+A seed found in several files counts once, from the first file that holds it
+(give the held-out runs' own files first).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+
+from gap_summary import MATERIAL
+
+__all__ = ["rows", "steps", "contested_limits", "accepted_rails"]
+
+
+def rows(paths):
+    """Diagnosed rows of the JSON-lines files `paths`, one per seed (the first)."""
+    out, seen = [], set()
+    for path in paths:
+        with open(path) as fh:
+            for line in fh:
+                if not line.strip():
+                    continue
+                r = json.loads(line)
+                if "candidates" in r and r["seed"] not in seen:
+                    seen.add(r["seed"])
+                    out.append(r)
+    return out
+
+
+def steps(r):
+    """(step number, candidates, effect accepted or None) of each greedy step of row `r`."""
+    later = r.get("later_steps") or []
+    first = later[0]["on_top_of"][-1] if later else (r["named"][0] if r["named"] else None)
+    return [(1, r["candidates"], first)] + [(i + 2, s["candidates"], s.get("accepted"))
+                                            for i, s in enumerate(later)]
+
+
+def _injected(r, name):
+    return name in r["injected"] and r["injected"][name]["magnitude"] >= MATERIAL
+
+
+def contested_limits(rs):
+    """One dict per greedy step where a rail and a stroke limit both passed."""
+    out = []
+    for r in rs:
+        for k, cands, accepted in steps(r):
+            d = {c["effect"]: c["checks"] for c in cands}
+            if not all(n in d and d[n].get("passed") for n in ("clip", "saturation")):
+                continue
+            by_gc = max(("clip", "saturation"), key=lambda n: d[n]["gap_closed_step"])
+            by_bic = min(("clip", "saturation"), key=lambda n: d[n]["delta_bic"])
+            out.append({"seed": r["seed"], "family": r["family"], "step": k, "accepted": accepted,
+                        "injected": sorted(n for n in ("clip", "saturation") if _injected(r, n)),
+                        "by_gap_closed": by_gc, "by_delta_bic": by_bic,
+                        **{f"{n}_gap_closed": d[n]["gap_closed_step"] for n in ("clip", "saturation")},
+                        **{f"{n}_delta_bic": d[n]["delta_bic"] for n in ("clip", "saturation")}})
+    return out
+
+
+def accepted_rails(rs):
+    """One dict per rail accepted at a greedy step: level, knee [V], injected or not."""
+    out = []
+    for r in rs:
+        for k, cands, accepted in steps(r):
+            for c in cands:
+                if c["effect"] == "clip" and accepted == "clip" and c["checks"].get("passed"):
+                    out.append({"seed": r["seed"], "family": r["family"], "step": k,
+                                "level": c["params"]["level"], "knee": c["params"]["knee"],
+                                "injected": _injected(r, "clip")})
+    return out
+
+
+def _print_limits(rs):
+    found = contested_limits(rs)
+    for s in found:
+        print(f"{s['seed']} {s['family']:9s} step {s['step']} injected {s['injected'] or '-'} "
+              f"accepted {s['accepted']}: rail {s['clip_gap_closed']:.3f} / {s['clip_delta_bic']:.0f}, "
+              f"stroke limit {s['saturation_gap_closed']:.3f} / {s['saturation_delta_bic']:.0f}")
+    gc = sum(s["by_gap_closed"] in s["injected"] for s in found)
+    bic = sum(s["by_delta_bic"] in s["injected"] for s in found)
+    print(f"{len(found)} steps with both limits passing, over {len(rs)} scenarios: the one closing more "
+          f"was injected on {gc}, the better training fit on {bic}")
+
+
+def _print_rails(rs):
+    found = accepted_rails(rs)
+    for s in found:
+        print(f"{s['seed']} {s['family']:9s} step {s['step']} {'injected' if s['injected'] else 'not there'}: "
+              f"level {s['level']:.1f} V, knee {s['knee']:.2f} V")
+    for inj in (True, False):
+        knees = sorted(s["knee"] for s in found if s["injected"] is inj)
+        span = f"{knees[0]:.2f}-{knees[-1]:.2f} V" if knees else "-"
+        print(f"{'injected' if inj else 'not injected'}: {len(knees)} rails accepted, knees {span}")
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("scan", choices=("limits", "rails"))
+    p.add_argument("files", nargs="+", help="JSON-lines files of blind_gap.py runs")
+    a = p.parse_args(argv)
+    rs = rows(a.files)
+    (_print_limits if a.scan == "limits" else _print_rails)(rs)
+
+
+if __name__ == "__main__":
+    main()
