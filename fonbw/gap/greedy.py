@@ -250,8 +250,10 @@ class GreedySteps:
         refusal said the fit imitates something else (a stroke limit that
         only bends the top: the loop's envelope); a passing rival says the
         records hold what both blocks express, and the two then compete
-        (:func:`fonbw.gap.selection.pick_best`: two limits on the validation
-        gap each closes, so the one judged again wins if it passes)."""
+        (:func:`fonbw.gap.selection.pick_best`: when the training fit ranks a
+        limit first, the two limits on the validation gap each closes, so the
+        one judged again wins if it passes; a block that is no limit and
+        fits the training records better still wins)."""
         by_name = {self.lib[r["i"]].name: r for r in results}
         for r in results:
             block, ch = self.lib[r["i"]], r["checks"]
