@@ -301,6 +301,25 @@ def test_a_rail_with_a_knee_over_a_fortieth_of_the_drive_is_refused():
     assert all(c.refuses({"level": a, "knee": k}) is None for a, k in c.grid)
 
 
+def test_a_rail_refit_soft_beside_another_effect_stays_refused():
+    from fonbw.gap import effects as fx
+    from fonbw.gap.greedy import _refused
+
+    # held-out seed 51020 (a Preisach core with a stroke limit): alone on the
+    # nominal the rail was sharp and passed; beside the accepted stroke limit
+    # its refit spread the knee over 5.74 V above every command
+    c = fx.Clip(114.77)
+    first = [{"effect": "clip", "checks": {"refused": c.refuses({"level": 113.70, "knee": 1.680})}}]
+    assert first[0]["checks"]["refused"] is None
+    assert "5.74 V" in _refused(c, 1, {"level": 126.24, "knee": 5.738}, first)
+    # a stroke limit's slope drop trades with the effect beside it: waived there
+    sat = fx.Saturation(0.0, 20.0)
+    alone = [{"effect": "saturation", "checks": {"refused": sat.refuses({"knee": 11.6, "width": 0.3, "c": -0.779})}}]
+    assert sat.refuses({"knee": 11.6, "width": 0.3, "c": -0.30}) is not None
+    assert _refused(sat, 1, {"knee": 11.6, "width": 0.3, "c": -0.30}, alone) is None
+    assert _refused(sat, 0, {"knee": 11.6, "width": 0.3, "c": -0.30}, alone) is not None
+
+
 # ---------------------------------------------------------------------------
 # fixed-seed diagnoses per core family (the full run is benchmarks/blind_gap.py)
 

@@ -112,6 +112,11 @@ class Effect:
         that what :meth:`refuses` took for something imitated is in the
         records: the refused block is then checked without its refusal
         (:meth:`fonbw.gap.greedy.GreedySteps._overrule`). None: no block can.
+    refuses_at_every_step : bool
+        :meth:`refuses` judges what the block is, not a parameter that trades
+        with an accepted effect's: it holds at a later greedy step even when
+        the block's fit alone on the nominal passed it
+        (:func:`fonbw.gap.greedy._refused`).
     """
 
     name = "none"
@@ -130,6 +135,7 @@ class Effect:
     transport_delay = False
     range_limit = False
     overruled_by: str | None = None
+    refuses_at_every_step = False
     search_seeds = 1
     #: How far above 1 the pooled leave-one-record-out ratio may lie
     #: (:func:`fonbw.gap.checks.loro`) for the block to pass; below zero, the
@@ -562,6 +568,11 @@ class Clip(Effect):
     #: a 0.4 σ drift, 46005). The 16 other rails accepted where one was
     #: injected had knees of 0.11-1.75 V (BENCHMARKS.md, "A rail is sharp").
     knee_max_share = 0.025
+    # a knee refit wide beside an accepted stroke limit is that limit's bend
+    # again, above every command (held-out seed 51020: 126.2 V, 5.74 V, where
+    # alone on the nominal it was a sharp 113.7 V rail); the three rails
+    # accepted so at a later step of the 35th-41st runs were none injected
+    refuses_at_every_step = True
 
     def __init__(self, U):
         super().__init__()

@@ -383,10 +383,11 @@ def _refused(block, step, params, first):
     A block that was its own effect alone on the nominal stays so: beside an
     accepted effect its parameters trade with that effect's (a stroke limit's
     corner with a resonance's peaks: its slope drop 0.78 alone, 0.30 beside
-    the resonance, blind-harness seed 32028).
+    the resonance, blind-harness seed 32028). Not a block whose refusal says
+    what it is (:attr:`~fonbw.gap.effects.Effect.refuses_at_every_step`).
     """
     reason = block.refuses(params)
-    if reason is not None and step > 0:
+    if reason is not None and step > 0 and not block.refuses_at_every_step:
         alone = next((c for c in first if c["effect"] == block.name), None)
         # one that passed there only beside its rival (:meth:`GreedySteps._overrule`) was no stop alone
         if alone is not None and alone["checks"]["refused"] is None and "overruled" not in alone["checks"]:
