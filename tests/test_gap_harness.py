@@ -251,9 +251,9 @@ def test_summary_per_family_on_hand_computed_rows(tmp_path):
     assert text.count("### ") == 5
 
 
-def _cand(name, passed, gc, dbic, **params):
+def _cand(name, passed, closed, dbic, **params):
     return {"effect": name, "params": params,
-            "checks": {"passed": passed, "gap_closed_step": gc, "delta_bic": dbic}}
+            "checks": {"passed": passed, "gap_closed_step": closed, "delta_bic": dbic}}
 
 
 def test_scans_of_spent_rows_on_hand_made_steps(tmp_path):
