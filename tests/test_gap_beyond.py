@@ -52,6 +52,27 @@ def test_pick_names_the_best_unrefused_limit_that_closes_half_and_one_noise_vari
     assert pick({"saturation": t(0.9, "a bend")}, mse, s2) is None
 
 
+def test_a_stroke_limit_refused_as_a_bend_is_named_when_a_passing_rail_closes_less():
+    s2 = 1e-4
+    rival = {"saturation": "clip", "clip": None}
+
+    def t(share, left, refused=None):
+        # `left`: what the model leaves above the floor [σ²] of an MSE `left` + 1 σ²
+        return {"gap_closed": share, "mse": (1 + left - share * left) * s2, "refused": refused}
+    # held-out seed 52000 (a Preisach core with a 7 σ stroke limit the training
+    # records did not reach): the rail closed 0.86, the stroke limit 0.99 with
+    # a slope drop of 56 %, and the rail had been named
+    seen = {"clip": t(0.86, 5), "saturation": t(0.99, 5, "the slope above the knee drops by 56%")}
+    assert pick(seen, 6 * s2, s2) == "clip"
+    assert pick(seen, 6 * s2, s2, rival) == "saturation"
+    # the rail closing more, or the stroke limit short of half, keeps the refusal
+    assert pick({"clip": t(0.86, 5), "saturation": t(0.80, 5, "a bend")}, 6 * s2, s2, rival) == "clip"
+    assert pick({"clip": t(0.30, 5), "saturation": t(0.45, 5, "a bend")}, 6 * s2, s2, rival) is None
+    # 48022 (a 0.2 σ rail under the noise): of 1.5 σ² left the rail closed 0.56,
+    # 0.84 σ², under one noise variance, so it does not pass and lifts nothing
+    assert pick({"clip": t(0.56, 1.5), "saturation": t(0.83, 1.5, "a bend")}, 2.5 * s2, s2, rival) is None
+
+
 class _Identity:
     """A diagnosis whose model is the (clipped) command itself: y = v [µm per V]."""
 
