@@ -7,7 +7,7 @@ import pytest
 import gap_truth as tr
 from fonbw.gap import diagnose
 from fonbw.gap import effects as fx
-from fonbw.gap.beyond import FOLD_S, SHARE, _rail, _stroke_limit, cross_fit, folds, pick
+from fonbw.gap.beyond import FOLD_S, SHARE, _rail, _stroke_limit, cross_fit, folds, pick, borne_out
 from fonbw.gap.checks import LATE_DROP
 from fonbw.gap.selection import outcome_text
 from fonbw.io import Record
@@ -104,7 +104,7 @@ def test_a_rail_at_the_drives_top_is_a_bend(level, refused):
     clip = fx.Clip(114.8)
     d = _Identity(u, dt)
     y = clip.transform_input(u, dt, (level, 0.3))
-    ctx = {"y": y, "u": u, "fold": folds(d.val), "u_train": 114.8}
+    ctx = {"y": y, "u": u, "z": u, "fold": folds(d.val), "u_train": 114.8}
     (pred, chosen), why = _rail(clip, d, ctx)
     top = chosen[0]["level"]
     if refused:
@@ -176,3 +176,52 @@ def test_a_stroke_limit_is_cross_fitted_on_the_models_output(c, refused):
     assert all(p["c"] == pytest.approx(c, abs=0.1) for p in chosen)
     assert np.sqrt(np.mean((pred - y) ** 2)) < 0.05
     assert (why is not None) == refused
+
+
+def test_borne_out_is_the_slope_of_the_misfit_on_the_rails_change_about_each_held_runs_mean():
+    # two records of a 1-Hz sine [µm], the model without the rail z and with
+    # it p (flat above 25 µm); held where z > 25 µm
+    t = np.arange(1000) * 1e-3
+    z1 = 15.0 - 15.0 * np.cos(2 * np.pi * t)
+    z = np.r_[z1, z1 + 2.0]
+    held = z > 25.0
+    p = np.where(held, 25.0, z)
+    starts = (0, 1000)
+    # the output flat at the rail's top bears all of it out, at any level;
+    # the output of the model without the rail none of it
+    assert borne_out(np.where(held, 7.0, z), z, p, held, starts) == pytest.approx(1.0)
+    assert borne_out(z, z, p, held, starts) == pytest.approx(0.0, abs=1e-12)
+    # 0.4 of the way from z to p about each run's own level: the offsets
+    # between runs (8 µm between the records) do not count
+    y = z + 0.4 * (p - z) + np.r_[np.full(1000, 3.0), np.full(1000, -5.0)]
+    assert borne_out(y, z, p, held, starts) == pytest.approx(0.4)
+    # a run of held samples across the two records' seam is two runs: the
+    # second record's first sample alone, with its own mean, adds nothing
+    h2 = np.array([False, True, True, True])
+    zz, pp = np.array([0.0, 1.0, 3.0, 5.0]), np.array([0.0, 1.0, 1.0, 9.0])
+    assert borne_out(np.array([0.0, 1.0, 2.0, -4.0]), zz, pp, h2, (0, 3)) == pytest.approx(0.5)
+    # nothing held, or a rail that changes nothing there: nothing to tell
+    assert borne_out(z, z, p, np.zeros(2000, bool), starts) is None
+    assert borne_out(z, z, z + 1.0, held, starts) is None
+
+
+def test_a_rail_that_mends_the_level_of_the_top_but_not_its_shape_is_a_bend():
+    # the model z is the command itself up to 120 V; the records lie 1.5 µm
+    # below it wherever the drive is above 112 V, with the same shape there (a
+    # top the model misplaces). A rail below the top mends much of that
+    # misfit by lowering the top, but it would flatten what stays a sine
+    dt = 1e-3
+    t = np.arange(2000) * dt
+    u = 60.0 - 60.0 * np.cos(2 * np.pi * t)
+    clip = fx.Clip(114.8)
+    d = _Identity(u, dt)
+    y = np.where(u > 112.0, u - 1.5, u)
+    ctx = {"y": y, "u": u, "z": u, "fold": folds(d.val), "u_train": 114.8}
+    (pred, chosen), why = _rail(clip, d, ctx)
+    assert all(c["level"] < 120.0 for c in chosen)
+    # the chosen rail closes over half of the misfit, cross-fitted ...
+    assert np.mean((y - pred) ** 2) < 0.5 * np.mean((y - u) ** 2)
+    # ... and is refused: where it holds the command the output keeps the
+    # model's shape exactly, so none of the rail's change is borne out
+    assert why == (f"where the rail at {chosen[0]['level']:.4g} V holds the command the output bears out "
+                   "0% of the shape it gives the top, not 50%: a bend of the loop")
