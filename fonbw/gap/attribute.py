@@ -405,6 +405,13 @@ class Diagnosis(GreedySteps):
 
     def set_nominal(self, fit):
         """Take the FONBW configuration `fit` as the nominal and predict with it."""
+        if fit["beta"] is None:
+            # a refit whose training design is not finite has no coefficients,
+            # hence no model to name: it diverged on a record (or its history)
+            raise NominalDiverges(
+                "diagnose: the nominal FONBW refit on the training records diverges on one of them (or on "
+                f"the history run before it): a Bouc-Wen model with sigma < {SIGMA_BOUNDED:g} has no bounded "
+                "state for every input")
         train, val, dt = self.train, self.val, self.dt
         zero_ref = [np.zeros(len(r.u)) for r in train]
         self.base = fit
