@@ -1065,7 +1065,7 @@ def test_a_nominal_of_its_own_that_diverges_is_refit_bounded():
 
 
 def test_a_nominal_refit_with_no_finite_fit_is_refit_bounded():
-    # Harness scenario 54001 (rate-dependent core, 11 σ delay, a training
+    # Harness scenario 54001 (rate-dependent core, 11.5 σ delay, a training
     # record starting mid-drive): the first refit of the identified FONBW
     # diverged on a training record after its history, so its linear solve
     # had no coefficients and the diagnosis ended in a TypeError. It is a

@@ -404,14 +404,22 @@ class Diagnosis(GreedySteps):
         return checks.mse([self.train[i] for i in idx], [self.yref_tr[i] for i in idx])
 
     def set_nominal(self, fit):
-        """Take the FONBW configuration `fit` as the nominal and predict with it."""
+        """Take the FONBW configuration `fit` as the nominal and predict with it.
+
+        Raises
+        ------
+        NominalDiverges
+            When `fit` has no coefficients (its training design was not
+            finite; nothing is changed then) or its prediction of a record is
+            not finite (the caller puts the nominal before it back).
+        """
         if fit["beta"] is None:
             # a refit whose training design is not finite has no coefficients,
             # hence no model to name: it diverged on a record (or its history)
-            raise NominalDiverges(
-                "diagnose: the nominal FONBW refit on the training records diverges on one of them (or on "
-                f"the history run before it): a Bouc-Wen model with sigma < {SIGMA_BOUNDED:g} has no bounded "
-                "state for every input")
+            raise NominalDiverges("diagnose: the nominal FONBW refit on the training records diverges on one of "
+                                  "them (or on the history run before it)"
+                                  + (_UNBOUNDED if getattr(self, "sigma_floor", None) is None else
+                                     f", even with sigma >= {self.sigma_floor:g}"))
         train, val, dt = self.train, self.val, self.dt
         zero_ref = [np.zeros(len(r.u)) for r in train]
         self.base = fit
@@ -448,9 +456,8 @@ class Diagnosis(GreedySteps):
                     raise NominalDiverges(
                         f"diagnose: the nominal FONBW identified on the training records (sigma = "
                         f"{pr['sigma']:.3g}, n = {pr['n']:.3g}) diverges on the {kind} record "
-                        f"{getattr(r, 'path', '?')}: a Bouc-Wen model with sigma < {SIGMA_BOUNDED:g} has no "
-                        "bounded state for every input. Give a nominal model (model=) or training records that "
-                        "cover this record's rates and range")
+                        f"{getattr(r, 'path', '?')}" + _UNBOUNDED + ". Give a nominal model (model=) or training "
+                        "records that cover this record's rates and range")
 
     def cut_va(self, preds):
         """Validation predictions without each record's burn-in (what is scored)."""
@@ -594,6 +601,9 @@ class Diagnosis(GreedySteps):
     def __getstate__(self):
         # a worker gets the diagnosis without the pool (pipes, processes)
         return {**self.__dict__, "pool": None}
+
+
+_UNBOUNDED = f": a Bouc-Wen model with sigma < {SIGMA_BOUNDED:g} has no bounded state for every input"
 
 
 class NominalDiverges(ValueError):
