@@ -17,8 +17,6 @@ from __future__ import annotations
 
 import argparse
 
-import numpy as np
-
 from fonbw.gap import beyond
 
 FAMILY = {"fonbw": "FONBW", "preisach": "Preisach", "pi": "Prandtl–Ishlinskii", "rate": "rate-dependent"}
@@ -36,9 +34,7 @@ def measure(seed, budget=1000):
         (pred, chosen), why = rail(clip, d, ctx)
         out = []
         for c in chosen:
-            fit = {**d.current["fit"], "th": list(d.current["fit"]["th"]) + [np.array([c["level"], c["knee"]])]}
-            p = np.concatenate(d.cut_va(d.att["fitter"].predict(d.val, fit, list(d.current["eff"]) + [clip],
-                                                                  d.att["yref_va"])))
+            p = beyond.rail_prediction(clip, d, c["level"], c["knee"])
             held = ctx["u"] >= c["level"]
             out.append((c["level"], beyond.borne_out(ctx["y"], ctx["z"], p, held, ctx["starts"])))
         seen.append((out, why))

@@ -46,8 +46,8 @@ import numpy as np
 
 from . import checks
 
-__all__ = ["FOLD_S", "SHARE", "MIN_SAMPLES", "BORNE_OUT", "folds", "cross_fit", "borne_out", "pick",
-           "beyond_training"]
+__all__ = ["FOLD_S", "SHARE", "MIN_SAMPLES", "BORNE_OUT", "folds", "cross_fit", "borne_out", "rail_prediction",
+           "pick", "beyond_training"]
 
 #: Length [s] of the alternate blocks of the two folds: 10 periods of the
 #: harness's 20-Hz validation sine, half a period of its 1-Hz one.
@@ -164,20 +164,24 @@ def _sse(y, p):
     return v if math.isfinite(v) else math.inf
 
 
+def rail_prediction(clip, d, level, knee):
+    """The scored validation samples [µm], concatenated, predicted by diagnosis
+    `d`'s final configuration with the rail `clip` at `level` [V] and `knee` [V]
+    after it, everything else held."""
+    cur, att = d.current, d.att
+    fit = {**cur["fit"], "th": list(cur["fit"]["th"]) + [np.array([level, knee])]}
+    return np.concatenate(d.cut_va(att["fitter"].predict(d.val, fit, list(cur["eff"]) + [clip], att["yref_va"])))
+
+
 def _rail(clip, d, ctx):
     """The rail's cross-fit: ten levels from just under the training's largest
     command (3 % of the block's U) to the validation's, each with the block's
     grid of knees. Refused (a bend of the loop) when a fold's rail sits at the
     drive's top or where that rail holds the command the output bears out
     less than :data:`BORNE_OUT` of the shape it gives the top."""
-    att, cur = d.att, d.current
     levels = np.linspace(ctx["u_train"] - 0.03 * clip.U, float(ctx["u"].max()), 10)
-    preds = {}
-    for level in levels:
-        for width in (k * clip.U for k in clip.knee_shares):
-            fit = {**cur["fit"], "th": list(cur["fit"]["th"]) + [np.array([level, width])]}
-            p = d.cut_va(att["fitter"].predict(d.val, fit, list(cur["eff"]) + [clip], att["yref_va"]))
-            preds[(float(level), float(width))] = np.concatenate(p)
+    preds = {(float(level), float(width)): rail_prediction(clip, d, level, width)
+             for level in levels for width in (k * clip.U for k in clip.knee_shares)}
     y = ctx["y"]
 
     def choose(mask):
