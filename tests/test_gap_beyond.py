@@ -9,7 +9,8 @@ import pytest
 import gap_truth as tr
 from fonbw.gap import diagnose
 from fonbw.gap import effects as fx
-from fonbw.gap.beyond import FOLD_S, SHARE, _rail, _stroke_limit, borne_out, cross_fit, folds, pick
+from fonbw.gap.beyond import (FOLD_S, MIN_SAMPLES, SHARE, _rail, _stroke_limit, borne_out, cross_fit, folds, pick,
+                              shifted_folds)
 from fonbw.gap.checks import LATE_DROP
 from fonbw.gap.selection import outcome_text
 from fonbw.io import Record
@@ -116,6 +117,51 @@ def test_a_rail_at_the_drives_top_is_a_bend(level, refused):
         # the grid's level nearest 117 V (levels 111.36-120 V in steps of 0.96 V)
         assert abs(top - level) < 0.5 and why is None
         assert np.sqrt(np.mean((pred - y) ** 2)) < 0.3
+
+
+def _sine_cut(phase, dt=1e-3, T=1.6):
+    """A 1-Hz sine from 0 to 120 V whose record starts `phase` periods into the drive."""
+    t = np.arange(int(round(T / dt))) * dt
+    return 60.0 - 60.0 * np.cos(2 * np.pi * (t + phase)), dt
+
+
+def test_shifted_folds_split_the_crests_of_a_sine_cut_mid_drive():
+    # started 0.3 periods in, the crests fall at 0.2 and 1.2 s: both in the
+    # first and third 0.5-s blocks, so fold 1 holds nothing past 114.8 V
+    u, dt = _sine_cut(0.3)
+    rec = Record.from_arrays(u=u, y=np.zeros_like(u), dt=dt)
+    past = u > 114.8
+    n = int(np.count_nonzero(past))
+    assert np.count_nonzero(past & (folds([rec]) == 1)) == 0
+    f = shifted_folds([rec], past)
+    # shifted by 0.3 s (12 of the 20 origins), a boundary sits on each crest:
+    # its rise in one fold, its fall in the other
+    expect = (((np.arange(u.size) * dt + 0.3) // FOLD_S).astype(int) % 2)
+    assert np.array_equal(f, expect)
+    c1 = int(np.count_nonzero(past & (f == 1)))
+    assert abs(2 * c1 - n) <= 2 and c1 >= 100
+    # a record whose blocks already split its crests keeps them (shift 0 wins the tie)
+    u0, _ = _sine_cut(0.0, T=1.0)
+    r0 = Record.from_arrays(u=u0, y=np.zeros_like(u0), dt=dt)
+    assert np.array_equal(shifted_folds([r0], u0 > 114.8), folds([r0]))
+
+
+def test_a_rail_on_a_sine_cut_mid_drive_is_cross_fitted_on_shifted_folds():
+    # the identity model and a rail at 117 V, the record cut 0.3 periods in:
+    # on the record's own blocks one fold cannot choose the rail at all; on
+    # the shifted ones each fold's choice predicts the other's crests
+    u, dt = _sine_cut(0.3)
+    clip = fx.Clip(114.8)
+    d = _Identity(u, dt)
+    y = clip.transform_input(u, dt, (117.0, 0.3))
+    past = u > 114.8
+    assert min(np.count_nonzero(past & (folds(d.val) == f)) for f in (0, 1)) < MIN_SAMPLES
+    ctx = {"y": y, "u": u, "z": u, "fold": shifted_folds(d.val, past), "u_train": 114.8}
+    (pred, chosen), why = _rail(clip, d, ctx)
+    assert why is None
+    assert all(abs(c["level"] - 117.0) < 0.5 for c in chosen)
+    left, before = np.mean((pred - y) ** 2), np.mean((u - y) ** 2)
+    assert 1.0 - left / before > 0.95
 
 
 @pytest.fixture(scope="module")

@@ -268,7 +268,9 @@ def beyond_text(beyond):
             f"a stroke limit at {p['knee']:.4g} µm (slope factor {1 + p['c']:.2g} above it)")
     return (f"{name}: {what} closes {beyond['gap_closed']:.2f} of what the model left, fitted on the "
             f"validation records where they go past the training range (chosen on alternate "
-            f"{beyond['fold_s']:g}-s blocks and scored on the others); a training record that reaches it "
+            f"{beyond['fold_s']:g}-s blocks and scored on the others"
+            + (", each record's blocks shifted to split its samples out there" if beyond.get("folds_shifted") else "")
+            + "); a training record that reaches it "
             "would confirm it")
 
 
