@@ -95,7 +95,13 @@ def folds(records, block_s=FOLD_S):
         in fold 0 alone, and a 1-Hz sine's rises fall in one fold and its
         falls in the other.
     """
-    return np.concatenate([((np.arange(len(r.y)) * r.dt) // block_s).astype(int) % 2 for r in records])
+    return np.concatenate([_alternate(r, block_s) for r in records])
+
+
+def _alternate(rec, block_s, shift=0.0):
+    """0 or 1 per sample of `rec`: alternate blocks of `block_s` [s], the first
+    ending `block_s` − `shift` [s] after its first sample."""
+    return ((np.arange(len(rec.y)) * rec.dt + shift) // block_s).astype(int) % 2
 
 
 def shifted_folds(records, past, block_s=FOLD_S, steps=20):
@@ -130,10 +136,9 @@ def shifted_folds(records, past, block_s=FOLD_S, steps=20):
         n = len(r.y)
         m = np.asarray(past[i:i + n], bool)
         i += n
-        t = np.arange(n) * r.dt
         best = None
         for k in range(steps):
-            f = ((t + k * block_s / steps) // block_s).astype(int) % 2
+            f = _alternate(r, block_s, k * block_s / steps)
             c = int(np.count_nonzero(m & (f == 1)))
             even = min(c, int(np.count_nonzero(m)) - c)
             if best is None or even > best[0]:
