@@ -12,7 +12,7 @@ from fonbw.gap import effects as fx
 from fonbw.gap.beyond import (FOLD_S, MIN_SAMPLES, SHARE, _rail, _stroke_limit, borne_out, cross_fit, folds, pick,
                               shifted_folds)
 from fonbw.gap.checks import LATE_DROP
-from fonbw.gap.selection import outcome_text
+from fonbw.gap.selection import beyond_text, outcome_text
 from fonbw.io import Record
 
 FAST = dict(budget=500, global_evals=160, refit_evals=45)
@@ -134,16 +134,20 @@ def test_shifted_folds_split_the_crests_of_a_sine_cut_mid_drive():
     n = int(np.count_nonzero(past))
     assert np.count_nonzero(past & (folds([rec]) == 1)) == 0
     f = shifted_folds([rec], past)
-    # shifted by 0.3 s (12 of the 20 origins), a boundary sits on each crest:
+    # shifted by 0.3 s (12/20 of a block), a boundary sits on each crest:
     # its rise in one fold, its fall in the other
     expect = (((np.arange(u.size) * dt + 0.3) // FOLD_S).astype(int) % 2)
     assert np.array_equal(f, expect)
     c1 = int(np.count_nonzero(past & (f == 1)))
     assert abs(2 * c1 - n) <= 2 and c1 >= 100
-    # a record whose blocks already split its crests keeps them (shift 0 wins the tie)
+    # a record whose blocks already split its crests keeps them (no shift splits
+    # them more evenly), and one with nothing out there too (every shift ties)
     u0, _ = _sine_cut(0.0, T=1.0)
     r0 = Record.from_arrays(u=u0, y=np.zeros_like(u0), dt=dt)
     assert np.array_equal(shifted_folds([r0], u0 > 114.8), folds([r0]))
+    assert np.array_equal(shifted_folds([rec, r0], np.zeros(u.size + u0.size, bool)), folds([rec, r0]))
+    with pytest.raises(ValueError, match="samples past the training range"):
+        shifted_folds([rec], past[:-1])
 
 
 def test_a_rail_on_a_sine_cut_mid_drive_is_cross_fitted_on_shifted_folds():
@@ -162,6 +166,14 @@ def test_a_rail_on_a_sine_cut_mid_drive_is_cross_fitted_on_shifted_folds():
     assert all(abs(c["level"] - 117.0) < 0.5 for c in chosen)
     left, before = np.mean((pred - y) ** 2), np.mean((u - y) ** 2)
     assert 1.0 - left / before > 0.95
+
+
+def test_the_verdict_says_when_the_folds_were_shifted():
+    b = {"effect": "clip", "params": {"level": 117.0, "knee": 0.3}, "gap_closed": 0.91, "fold_s": 0.5}
+    plain, moved = beyond_text({**b, "folds_shifted": False}), beyond_text({**b, "folds_shifted": True})
+    assert plain.startswith("clip: a rail at 117 V (knee 0.3 V) closes 0.91 of what the model left")
+    assert "alternate 0.5-s blocks and scored on the others)" in plain and "shifted" not in plain
+    assert "scored on the others, each record's blocks shifted to split its samples out there)" in moved
 
 
 @pytest.fixture(scope="module")
@@ -194,6 +206,8 @@ def test_a_rail_only_the_validation_records_reach_is_named_beyond_training(rail_
     assert st["step"] == "+clip beyond training"
     assert st["gap_closed_cum"] == pytest.approx(v["gap_closed"], abs=1e-12)
     assert f"alternate {FOLD_S:g}-s blocks" in v["message"]
+    # the records start at rest: both folds hold the rail's samples unshifted
+    assert b["folds_shifted"] is False and "shifted" not in v["message"]
     s2 = res["nominal"]["noise_floor"] ** 2
     before = v["waterfall"][-3]["rms_validate"] ** 2
     assert before - st["rms_validate"] ** 2 >= LATE_DROP * s2

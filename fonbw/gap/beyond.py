@@ -41,8 +41,10 @@ The blocks count from each record's first scored sample. A 1-Hz validation
 sine cut mid-drive can then have every crest in one fold, leaving the other
 nothing past the training range to choose on; the stage was skipped on 13 of
 the 96 spent held-out scenarios (45000-55039) with a validation record cut
-mid-drive. When a fold is short so, each record's blocks are shifted to
-split its samples out there (:func:`shifted_folds`). Diagnosed again with
+mid-drive. When a block's samples out there leave a fold with fewer than
+:data:`MIN_SAMPLES`, each record's blocks are shifted to split them
+(:func:`shifted_folds`), and both blocks are cross-fitted on the shifted
+folds, so that :func:`pick` compares them on the same folds. Diagnosed again with
 and without the shift, those 13 named two limits that were there and had
 been missed (a rail, 55030, closing 0.91 of what was left; a stroke limit,
 47000, 0.84), and the other eleven the same effects with the same gap
@@ -58,8 +60,8 @@ import numpy as np
 
 from . import checks
 
-__all__ = ["FOLD_S", "SHARE", "MIN_SAMPLES", "BORNE_OUT", "folds", "shifted_folds", "cross_fit", "borne_out", "rail_prediction",
-           "pick", "beyond_training"]
+__all__ = ["FOLD_S", "SHARE", "MIN_SAMPLES", "BORNE_OUT", "folds", "shifted_folds", "cross_fit", "borne_out",
+           "rail_prediction", "pick", "beyond_training"]
 
 #: Length [s] of the alternate blocks of the two folds: 10 periods of the
 #: harness's 20-Hz validation sine, half a period of its 1-Hz one.
@@ -131,6 +133,9 @@ def shifted_folds(records, past, block_s=FOLD_S, steps=20):
     ndarray of int
         0 or 1 per sample, the records concatenated.
     """
+    if len(past) != sum(len(r.y) for r in records):
+        raise ValueError(f"shifted_folds: {len(past)} samples past the training range given for "
+                         f"{sum(len(r.y) for r in records)} scored samples")
     out, i = [], 0
     for r in records:
         n = len(r.y)
@@ -314,13 +319,16 @@ def beyond_training(d):
     closes :data:`SHARE` of what is left and :data:`~fonbw.gap.checks.LATE_DROP`
     noise variances of MSE.
 
-    Sets ``d.beyond`` (None when no validation record goes past the training
-    range, else ``effect`` (the limit named, or None), ``gap_closed`` (its share
-    of what the model left), ``gap_closed_all`` (of the nominal's excess gap,
-    as ``verdict.gap_closed``), ``params``, ``fold_s``, ``folds_shifted`` (the
-    blocks were shifted, :func:`shifted_folds`), ``overruled`` (the named limit's
-    refusal, lifted by :func:`pick`, or None) and ``tried`` (each block's share,
-    fold parameters and refusal)) and, when a limit is named, ``d.current``'s
+    Sets ``d.beyond`` (None when the model is at the noise floor or holds
+    the most effects already, when no validation record goes past the
+    training range, or when a fold, shifted or not, has too few samples out
+    there for every block; else ``effect`` (the limit named, or None),
+    ``gap_closed`` (its share of what the model left), ``gap_closed_all`` (of
+    the nominal's excess gap, as ``verdict.gap_closed``), ``params``,
+    ``fold_s``, ``folds_shifted`` (the blocks were moved,
+    :func:`shifted_folds`), ``overruled`` (the named limit's refusal, lifted
+    by :func:`pick`, or None) and ``tried`` (each block's share, fold
+    parameters and refusal)) and, when a limit is named, ``d.current``'s
     validation predictions and MSE (cross-fitted) and a waterfall step.
     """
     d.beyond = None
@@ -346,11 +354,14 @@ def beyond_training(d):
         blocks["clip"] = (_rail, u > ctx["u_train"])
     if "saturation" in lib and "saturation" not in d.accepted and z.max() > ctx["y_train"]:
         blocks["saturation"] = (_stroke_limit, z > ctx["y_train"])
-    covered = lambda m: all(np.count_nonzero(m & (ctx["fold"] == f)) >= MIN_SAMPLES for f in (0, 1))  # noqa: E731
-    shifted = bool(blocks) and not all(covered(m) for _, m in blocks.values())
-    if shifted:
-        ctx["fold"] = shifted_folds(d.val_s, np.logical_or.reduce([m for _, m in blocks.values()]))
-    blocks = {k: v for k, v in blocks.items() if covered(v[1])}
+    def covered(m, fold):
+        return all(np.count_nonzero(m & (fold == f)) >= MIN_SAMPLES for f in (0, 1))
+    shifted = False
+    if blocks and not all(covered(m, ctx["fold"]) for _, m in blocks.values()):
+        new = shifted_folds(d.val_s, np.logical_or.reduce([m for _, m in blocks.values()]))
+        shifted = not np.array_equal(new, ctx["fold"])
+        ctx["fold"] = new
+    blocks = {k: v for k, v in blocks.items() if covered(v[1], ctx["fold"])}
     if not blocks:
         return
     n = len(y)
