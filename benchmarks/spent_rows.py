@@ -13,11 +13,16 @@ diagnosing anything again. Two scans:
 ``rails``
     the rails accepted at a greedy step, with their level and knee [V], and
     whether a rail was injected.
+``rail-tops``
+    the scenarios where a rail passed a greedy step, by how far under the
+    training's largest command its level sat (from the rows' coverage
+    flags), and which limit was injected there.
 
 Usage::
 
     python benchmarks/spent_rows.py limits held45.jsonl held46.jsonl ...
     python benchmarks/spent_rows.py rails held45.jsonl held46.jsonl ...
+    python benchmarks/spent_rows.py rail-tops held45.jsonl held46.jsonl ...
 
 A seed found in several files counts once, from the first file that holds it
 (give the held-out runs' own files first).
@@ -29,7 +34,7 @@ import json
 
 from gap_summary import MATERIAL
 
-__all__ = ["rows", "steps", "contested_limits", "accepted_rails"]
+__all__ = ["rows", "steps", "contested_limits", "accepted_rails", "passing_rail_tops"]
 
 
 def rows(paths):
@@ -90,6 +95,31 @@ def accepted_rails(rs):
     return out
 
 
+def _train_top(r):
+    """The training's largest command [V], from the validation coverage flags of row `r` (None unflagged)."""
+    for rem in r.get("remaining") or []:
+        for f in rem["outside"]:
+            if f["condition"] == "u_max":
+                return f["train"]
+    return None
+
+
+def passing_rail_tops(rs):
+    """One dict per scenario where a rail passed a greedy step: the highest
+    such rail's level under the training's largest command [V] (negative
+    above it) and that command, and the limits injected (at ≥ 2 σ)."""
+    out = []
+    for r in rs:
+        top = _train_top(r)
+        levels = [c["params"]["level"] for _, cands, _ in steps(r) for c in cands
+                  if c["effect"] == "clip" and c["checks"].get("passed")]
+        if top is None or not levels:
+            continue
+        out.append({"seed": r["seed"], "family": r["family"], "under": top - max(levels), "top": top,
+                    "injected": sorted(n for n in ("clip", "saturation") if _injected(r, n))})
+    return out
+
+
 def _print_limits(rs):
     found = contested_limits(rs)
     for s in found:
@@ -113,13 +143,27 @@ def _print_rails(rs):
         print(f"{'injected' if inj else 'not injected'}: {len(knees)} rails accepted, knees {span}")
 
 
+def _print_rail_tops(rs, share=0.005):
+    found = passing_rail_tops(rs)
+    for s in sorted(found, key=lambda s: s["under"]):
+        print(f"{s['seed']} {s['family']:9s} {s['under']:+7.2f} V under {s['top']:.2f} V, "
+              f"injected {s['injected'] or '-'}")
+    near = [s for s in found if s["under"] <= share * s["top"]]
+    for what, group in (("within %.1f %% of the top or above it" % (100 * share), near),
+                        ("lower", [s for s in found if s not in near])):
+        rail = sum("clip" in s["injected"] for s in group)
+        stop = sum("saturation" in s["injected"] and "clip" not in s["injected"] for s in group)
+        print(f"{what}: {len(group)} scenarios, a rail injected in {rail}, a stroke limit (no rail) in {stop}, "
+              f"neither in {len(group) - rail - stop}")
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("scan", choices=("limits", "rails"))
+    p.add_argument("scan", choices=("limits", "rails", "rail-tops"))
     p.add_argument("files", nargs="+", help="JSON-lines files of blind_gap.py runs")
     a = p.parse_args(argv)
     rs = rows(a.files)
-    (_print_limits if a.scan == "limits" else _print_rails)(rs)
+    {"limits": _print_limits, "rails": _print_rails, "rail-tops": _print_rail_tops}[a.scan](rs)
 
 
 if __name__ == "__main__":

@@ -297,30 +297,44 @@ def test_a_rail_with_a_knee_over_a_fortieth_of_the_drive_is_refused():
     assert why is not None and "5.39 V" in why and "2.87 V" in why
     assert c.refuses({"level": 110.26, "knee": 0.1148}) is None
     assert c.refuses({"level": 110.0, "knee": 2.86}) is None and c.refuses({"level": 110.0, "knee": 2.88})
-    # the grid's knees are all sharp enough (its levels at the top are left
-    # to the validation records)
-    assert all(c.refuses({"level": a, "knee": k}) is None for a, k in c.grid if a < 0.99 * c.U)
+    # the grid's knees are all sharp enough
+    assert not any("spreads" in (c.refuses({"level": a, "knee": k}) or "") for a, k in c.grid)
 
 
 def test_a_rail_at_the_top_of_the_training_commands_is_left_to_the_validation_records():
     from fonbw.gap import effects as fx
 
     # greedy fits of spent blind-harness scenarios, largest training command
-    # 114.77 V: stroke limits named rails just under and over the top (54011,
-    # 55021), an injected rail there (47029), and one lower down (47014)
-    c = fx.Clip(114.77)
-    for level, knee in ((114.50, 0.951), (115.19, 0.771), (114.66, 0.73)):
+    # 114.77 V, validation drives to 120 V: stroke limits named rails just
+    # under and over the top (54011, 55021), an injected rail there (47029),
+    # and one lower down (47014)
+    c = fx.Clip(114.77, past_top=True)
+    for level, knee, where in ((114.50, 0.951, "0.27 V under the largest training command (114.77 V), so "
+                                "the training records barely show"),
+                               (115.19, 0.771, "at or above the largest training command (114.77 V), so "
+                                "the training records do not show"),
+                               (114.66, 0.73, "0.11 V under")):
         why = c.refuses({"level": level, "knee": knee})
-        assert why.startswith(f"it sits at {level:.4g} V, ") and "(114.8 V)" in why and "beyond the training" in why
-        assert ("above every training command" in why) == (level > 114.77)
-        assert ("within 0.5% under the largest" in why) == (level < 114.77)
+        assert why.startswith(f"it sits at {level:.5g} V, {where}") and why.endswith("(beyond the training range)")
     assert c.refuses({"level": 113.24, "knee": 0.60}) is None
-    # the line sits 0.5 % of the largest command under it
-    top = (1.0 - c.top_share) * c.U
-    assert top == pytest.approx(114.196, abs=1e-3)
-    assert c.refuses({"level": top - 1e-9, "knee": 0.3}) is None and c.refuses({"level": top, "knee": 0.3})
+    # the line sits 0.5 % of U under the top
+    line = c.top - c.top_share * c.U
+    assert line == pytest.approx(114.196, abs=1e-3)
+    assert c.refuses({"level": line - 1e-9, "knee": 0.3}) is None and c.refuses({"level": line, "knee": 0.3})
+    # the grid's levels from the line up, and only those
+    assert [bool(c.refuses({"level": a, "knee": k})) for a, k in c.grid] == [a >= line for a, k in c.grid]
     # the knee's rule speaks first
     assert "spreads" in c.refuses({"level": 126.24, "knee": 5.738})
+    # validation records that do not drive past the top cannot judge it: the
+    # training records do, as before
+    assert fx.Clip(114.77).refuses({"level": 115.19, "knee": 0.771}) is None
+    # a bipolar drive from -150 V to 60 V: judged against its top, on the
+    # scale of its largest magnitude
+    b = fx.Clip(150.0, top=60.0, past_top=True)
+    assert b.refuses({"level": 59.5, "knee": 0.3}).startswith("it sits at 59.5 V, 0.5 V under the largest "
+                                                             "training command (60 V)")
+    assert b.refuses({"level": 59.2, "knee": 0.3}) is None
+    assert b.identified((59.9, 0.3)) and not b.identified((60.0, 0.3))
 
 
 def test_a_rail_refit_soft_beside_another_effect_stays_refused():

@@ -405,7 +405,7 @@ def pick(tried, mse, sigma2, overruled_by=None):
 
     As in the greedy steps (:meth:`fonbw.gap.greedy.GreedySteps._overrule`),
     a refused block is judged without its refusal when the block that
-    overrules it (`overruled_by`: name → :attr:`~fonbw.gap.effects.Effect.overruled_by`)
+    overrules it (`overruled_by`: name → :attr:`~fonbw.gap.block.Effect.overruled_by`)
     passes and closes less: a stroke limit refused as a bend when a rail
     passes beside it. On the rows of the 35th-42nd held-out runs this
     happened three times; two were injected stroke limits that the rail

@@ -33,7 +33,7 @@ class GreedySteps:
         (default: the diagnosis's library).
 
         On the FONBW nominal a block is searched from its ``search_seeds``
-        seeds (:class:`fonbw.gap.effects.Effect`) and the best full-rate
+        seeds (:class:`fonbw.gap.block.Effect`) and the best full-rate
         training fit is kept. Returns (fit, validation predictions,
         validation MSE [µm²]).
         """
@@ -245,7 +245,7 @@ class GreedySteps:
 
     def _overrule(self, step, results):
         """Check again, without its own refusal, each candidate of a greedy
-        step's `results` that its :attr:`~fonbw.gap.effects.Effect.overruled_by`
+        step's `results` that its :attr:`~fonbw.gap.block.Effect.overruled_by`
         block overrules: that block passed and closed less of the gap. The
         refusal said the fit imitates something else (a stroke limit that
         only bends the top: the loop's envelope); a passing rival says the
@@ -377,14 +377,14 @@ class GreedySteps:
 
 def _refused(block, step, params, first):
     """Why `block`, fitted to `params` at greedy `step`, is not its own effect
-    (:meth:`fonbw.gap.effects.Effect.refuses`), or None; `first` holds the
+    (:meth:`fonbw.gap.block.Effect.refuses`), or None; `first` holds the
     first step's candidates.
 
     A block that was its own effect alone on the nominal stays so: beside an
     accepted effect its parameters trade with that effect's (a stroke limit's
     corner with a resonance's peaks: its slope drop 0.78 alone, 0.30 beside
     the resonance, blind-harness seed 32028). Not a block whose refusal says
-    what it is (:attr:`~fonbw.gap.effects.Effect.refuses_at_every_step`).
+    what it is (:attr:`~fonbw.gap.block.Effect.refuses_at_every_step`).
     """
     reason = block.refuses(params)
     if reason is not None and step > 0 and not block.refuses_at_every_step:
@@ -398,7 +398,7 @@ def _refused(block, step, params, first):
 def _edges_left_most(block, edges):
     """The most of the nominal's misfit at the step `edges` that `block`'s fit
     may leave (:meth:`GreedySteps._edges_left`), or None when it is not judged
-    so: the block's own :attr:`~fonbw.gap.effects.Effect.edges_left_most`,
+    so: the block's own :attr:`~fonbw.gap.block.Effect.edges_left_most`,
     and for a delay only where the output moves in most edges' own sample
     (:meth:`fonbw.gap.edges.StepEdges.moves_at_once`). Such a delay is under a
     sample, on sampled records a lag over within one, and the drive's own

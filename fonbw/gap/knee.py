@@ -1,7 +1,7 @@
 """Compiled arithmetic of the stroke-saturation block: its softplus knee and
 the Gauss-Newton fit that the block's output nonlinearity needs.
 
-The saturation block (:class:`fonbw.gap.effects.Saturation`) bends the
+The saturation block (:class:`fonbw.gap.limits.Saturation`) bends the
 model's own output, y = z + c f(z) with z = B b, so every evaluation of a
 candidate with it solves a small nonlinear least-squares problem by
 Gauss-Newton (:meth:`fonbw.gap.fitter.Fitter.fit_linear`). Written with numpy

@@ -27,7 +27,7 @@ def pick_best(results, tie_margin=math.inf):
         One per candidate tried, each with ``checks`` (``passed``,
         ``gap_closed_step``, ``delta_bic``, ``identified``) and optionally
         ``range_limit`` (the block is a rail or a stroke limit,
-        :attr:`fonbw.gap.effects.Effect.range_limit`).
+        :attr:`fonbw.gap.block.Effect.range_limit`).
     tie_margin : float
         Passing candidates that close at least the best one's gap_closed
         minus this margin compete on the training records' information
