@@ -283,6 +283,15 @@ def test_scans_of_spent_rows_on_hand_made_steps(tmp_path):
         ("clip", "saturation", ["clip"]), ("saturation", "saturation", [])]
     rails = sr.accepted_rails(rs)
     assert [(s["seed"], s["step"], s["knee"], s["injected"]) for s in rails] == [(1, 1, 0.5, True), (2, 2, 4.0, False)]
+    # the highest passing rail against the training's top, read from the coverage flags
+    rs[0]["remaining"] = [{"outside": [{"condition": "rate_p99", "train": 900.0},
+                                       {"condition": "u_max", "train": 114.77}]}]
+    rs[1]["remaining"] = [{"outside": [{"condition": "u_max", "train": 112.3}]}]
+    tops = sr.passing_rail_tops(rs)
+    assert [(s["seed"], s["injected"]) for s in tops] == [(1, ["clip"]), (2, [])]
+    assert tops[0]["under"] == pytest.approx(4.77) and tops[1]["under"] == pytest.approx(0.3)
+    del rs[1]["remaining"]                      # no flag: no top to measure against
+    assert [s["seed"] for s in sr.passing_rail_tops(rs)] == [1]
 
 
 def _digest_diagnose(train, validate, seed=0, budget=0, **kw):
