@@ -32,6 +32,8 @@ from __future__ import annotations
 import argparse
 import json
 
+from fonbw.gap.checks import top_passed
+from fonbw.gap.limits import Clip
 from gap_summary import MATERIAL
 
 __all__ = ["rows", "steps", "contested_limits", "accepted_rails", "passing_rail_tops"]
@@ -95,22 +97,13 @@ def accepted_rails(rs):
     return out
 
 
-def _train_top(r):
-    """The training's largest command [V], from the validation coverage flags of row `r` (None unflagged)."""
-    for rem in r.get("remaining") or []:
-        for f in rem["outside"]:
-            if f["condition"] == "u_max":
-                return f["train"]
-    return None
-
-
 def passing_rail_tops(rs):
     """One dict per scenario where a rail passed a greedy step: the highest
     such rail's level under the training's largest command [V] (negative
     above it) and that command, and the limits injected (at ≥ 2 σ)."""
     out = []
     for r in rs:
-        top = _train_top(r)
+        top = top_passed(f for rem in r.get("remaining") or [] for f in rem["outside"])
         levels = [c["params"]["level"] for _, cands, _ in steps(r) for c in cands
                   if c["effect"] == "clip" and c["checks"].get("passed")]
         if top is None or not levels:
@@ -143,7 +136,7 @@ def _print_rails(rs):
         print(f"{'injected' if inj else 'not injected'}: {len(knees)} rails accepted, knees {span}")
 
 
-def _print_rail_tops(rs, share=0.005):
+def _print_rail_tops(rs, share=Clip.top_share):
     found = passing_rail_tops(rs)
     for s in sorted(found, key=lambda s: s["under"]):
         print(f"{s['seed']} {s['family']:9s} {s['under']:+7.2f} V under {s['top']:.2f} V, "

@@ -344,13 +344,13 @@ def beyond_training(d):
     raw = d.rs.raw["train"]  # the records as measured, without the histories run before them
     # past the training inputs where the coverage flags say so: the amplitude
     # test is theirs, and the rail is tried only then
-    over = [f["train"] for f in d.coverage if f["condition"] == "u_max"]
-    ctx = {"y": y, "u": u, "z": z, "fold": folds(d.val_s), "u_train": over[0] if over else None,
+    top = checks.top_passed(d.coverage)
+    ctx = {"y": y, "u": u, "z": z, "fold": folds(d.val_s), "u_train": top,
            "y_train": max(float(np.nanmax(r.y)) for r in raw),
            "starts": np.r_[0, np.cumsum([len(r.y) for r in d.val_s])[:-1]]}
     lib = {e.name: e for e in d.lib}
     blocks = {}
-    if "clip" in lib and "clip" not in d.accepted and over:
+    if "clip" in lib and "clip" not in d.accepted and top is not None:
         blocks["clip"] = (_rail, u > ctx["u_train"])
     if "saturation" in lib and "saturation" not in d.accepted and z.max() > ctx["y_train"]:
         blocks["saturation"] = (_stroke_limit, z > ctx["y_train"])

@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 __all__ = ["at_floor", "CONDITIONS", "RATE_CONDITIONS", "AMPLITUDE_TOL", "MIN_DROP", "LATE_SHARE", "LATE_DROP", "BIC_EVIDENCE",
-           "OWN_SHARE", "material", "bic_change", "lacks_evidence", "coverage", "longest_run", "flag_text",
+           "OWN_SHARE", "material", "bic_change", "lacks_evidence", "coverage", "top_passed", "longest_run", "flag_text",
            "loro_passes", "remaining", "mse", "bootstrap", "loro"]
 
 
@@ -186,6 +186,12 @@ def coverage(train, validate, dt):
         flags += [{"condition": k, "train": lim, "validate": s[k], "record": str(r.path), "index": i}
                   for k, lim in out]
     return flags
+
+
+def top_passed(flags):
+    """The training records' largest input [V] when a validation record drives
+    past it (a ``u_max`` flag of :func:`coverage` among `flags`), else None."""
+    return next((f["train"] for f in flags if f["condition"] == "u_max"), None)
 
 
 def longest_run(mask):
