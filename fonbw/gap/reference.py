@@ -146,21 +146,17 @@ import math
 import time
 
 import numpy as np
-from scipy.optimize import lsq_linear
 
 from ..fractional import apply_op, make_op
 from .blas import single_thread
 from .filters import first_order
+from .lstsq import bounded_lstsq
 from .plays import _combined_kernel, _filtered_rate, _level_columns, _play_kernel, play_bank
 
 __all__ = ["ReferenceHysteresis", "ReferenceFit", "play_bank", "RATES", "INITIALS"]
 
 RATES = (None, "threshold", "fractional", "both", "viscous")
 INITIALS = ("rest", "descended", "ascended", "burn-in")
-
-#: Largest ratio of the Gram-Cholesky factor's diagonal for which the normal
-#: equations are trusted (about cond(Φ); squared it must stay well inside 1e16).
-_GRAM_COND = 1e4
 
 _THETA = {
     None: ((), (), ()),
@@ -460,50 +456,12 @@ class ReferenceHysteresis:
         """Bounded least squares of y ≈ Φ c; returns (c, residual sum of squares [µm²]).
 
         Φ holds this reference's columns, then `n_free` more columns whose
-        weights are unbounded (another block's, solved beside the reference's).
-
-        The columns are scaled to unit norm and reduced to a p x p triangular
-        factor, so the bounded solve (BVLS) costs nothing next to building Φ.
-        The factor comes from the Cholesky decomposition of the Gram matrix,
-        with one step of iterative refinement on the free weights, when that
-        is well conditioned; otherwise (nearly collinear columns, e.g. plays
-        that barely move with ``level``) from a blocked QR of [Φ y], which
-        loses only cond(Φ), not cond(Φ)², digits.
+        weights are unbounded (another block's, solved beside the reference's):
+        :func:`fonbw.gap.lstsq.bounded_lstsq` with this reference's
+        :attr:`bounds`.
         """
-        Phi = np.asarray(Phi, dtype=float)
-        y = np.asarray(y, dtype=float)
-        p = Phi.shape[1]
-        s = np.linalg.norm(Phi, axis=0)
-        s[s == 0] = 1.0
-        A = Phi / s
         lo, hi = self.bounds
-        lo, hi = np.r_[lo, np.full(n_free, -np.inf)], np.r_[hi, np.full(n_free, np.inf)]
-        G = A.T @ A
-        try:
-            R = np.linalg.cholesky(G).T
-            d = np.abs(np.diag(R))
-            gram = d.min() * _GRAM_COND > d.max()
-        except np.linalg.LinAlgError:
-            gram = False
-        if gram:
-            b = np.linalg.solve(R.T, A.T @ y)
-        else:
-            Rb = _tsqr(np.column_stack([A, y]))
-            R, b = Rb[:p, :p], Rb[:p, p]
-        # BVLS may leave a weight on its bound off by round-off; a p x p
-        # problem runs on one BLAS thread (the same numbers, see fonbw.gap.blas)
-        with single_thread():
-            c = np.maximum(lsq_linear(R, b, bounds=(lo, hi), method="bvls", tol=1e-12).x, lo)
-        e = y - A @ c
-        rss = float(e @ e)
-        free = (c > lo) | ~np.isfinite(lo)
-        if gram and np.any(free):
-            c2 = c.copy()
-            c2[free] = np.maximum(c[free] + np.linalg.solve(G[np.ix_(free, free)], A[:, free].T @ e), lo[free])
-            e2 = y - A @ c2
-            if e2 @ e2 <= rss:
-                c, rss = c2, float(e2 @ e2)
-        return c / s, rss
+        return bounded_lstsq(Phi, y, np.r_[lo, np.full(n_free, -np.inf)], np.r_[hi, np.full(n_free, np.inf)])
 
     def _design(self, recs, theta):
         return np.concatenate([self.columns(r.u, r.dt, theta) for r in recs])
@@ -557,16 +515,6 @@ class ReferenceHysteresis:
         e = np.concatenate([fit.predict(r) - r.y for r in recs])
         fit.rms_train = float(np.sqrt(np.mean(e**2)))
         return fit
-
-
-def _tsqr(A, chunk=2048):
-    # QR by row blocks: the same R (up to signs), several times faster than one
-    # LAPACK call on a tall, narrow matrix (better cache use). One BLAS
-    # thread: the blocks are small, and a second thread gave the same R
-    # at 20 times the wall time on a busy machine (fonbw.gap.blas)
-    with single_thread():
-        Rs = [np.linalg.qr(A[i:i + chunk], mode="r") for i in range(0, A.shape[0], chunk)]
-        return np.linalg.qr(np.vstack(Rs), mode="r")
 
 
 def _as_list(records):
