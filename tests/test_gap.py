@@ -66,6 +66,39 @@ def test_creep_columns_closed_form_step():
         a = math.exp(-DT / tau)
         # implicit Euler step response: 1 − a^k, so the column is −a^k after the step
         np.testing.assert_allclose(C[1:, j], -a ** k[1:], rtol=1e-12, atol=1e-14)
+    # the logarithmic law: half-decade modes from 10 samples (3.2 ms) to 10 s, weight 1/2 each
+    taus = 10.0 ** np.arange(-2.5, 1.01, 0.5)
+    np.testing.assert_allclose(c.log_taus, taus, rtol=1e-12)
+    law = -0.5 * sum(np.exp(-DT / tau) ** k[1:] for tau in taus)
+    np.testing.assert_allclose(C[1:, 3], law, rtol=1e-12, atol=1e-14)
+    assert C.shape == (1000, 4) and c.lin_names[-1] == "gamma"
+
+
+def test_creep_law_recovers_a_logarithmic_creep():
+    # truth: a logarithmic creep of γ per decade as a continuum of modes from
+    # 1 ms to 100 s (40 a decade, bilinear), on steps held 3 s and a 5-Hz sine;
+    # the block finds γ, and its free modes alone cannot follow the fast decades
+    from scipy import signal
+
+    rng = np.random.default_rng(3)
+    n = int(12.0 / DT)
+    t = np.arange(n) * DT
+    h = np.select([t < 3, t < 6, t < 9], [0.0, 8.0, 3.0], 5 + 4 * np.sin(2 * np.pi * 5 * (t - 9)))
+    lag = np.zeros(n)
+    for tau in 10.0 ** np.linspace(-3.0, 2.0, 201):
+        b, a = signal.bilinear([1.0], [tau, 1.0], fs=1 / DT)
+        lag += (signal.lfilter(b, a, h) - h) / 40
+    c = fx.Creep(DT, 12.0)
+    C = c.columns({"y_ref": h, "dt": DT, "t": t}, ())
+    noise = 0.002
+    for gamma in (0.01, 0.05):
+        y = h + gamma * lag + rng.normal(0.0, noise, n)
+        A = np.column_stack([h, np.ones(n), C])
+        b, r = Fitter.fit_linear(A, y, nonneg=[2, 3, 4, 5])
+        assert b[5] == pytest.approx(gamma, rel=0.05)
+        assert np.sqrt(np.mean(r ** 2)) < 1.4 * noise
+        _, r3 = Fitter.fit_linear(A[:, :5], y, nonneg=[2, 3, 4])
+        assert np.sqrt(np.mean(r3 ** 2)) > (2.0 if gamma < 0.05 else 8.0) * noise
 
 
 def test_amplifier_block_filter_and_slew():
@@ -272,20 +305,20 @@ def test_linear_parameters_are_read_in_design_column_order():
     fit = Fitter(sc["train"], search_space("fonbw", sc["train"], N=3))
     effs = [fx.Saturation(0.0, 20.0), fx.Drift(), fx.Creep(DT, 6.0)]
     sl = fit.lin_slices(effs)
-    assert [(x.start, x.stop) for x in sl] == [(9, 10), (7, 9), (4, 7)]
-    assert fit.nonneg(effs) == [4, 5, 6]  # creep's gains
+    assert [(x.start, x.stop) for x in sl] == [(10, 11), (8, 10), (4, 8)]
+    assert fit.nonneg(effs) == [4, 5, 6, 7]  # creep's gains
     X = np.array([[0.5, 0.5, 1.0, 1.0, 1.0]])
     TH = [np.array([[15.0, 0.5]]), np.zeros((1, 0)), np.zeros((1, 0))]
     yref = [np.linspace(0.0, 17.0, len(r.u)) for r in sc["train"]]
     A = fit.design(sc["train"], X, effs, TH, yref)[0]
-    assert A.shape[1] == 10
-    np.testing.assert_array_equal(A[:, 9], np.concatenate([effs[0].shape(y, (15.0, 0.5))[0] for y in yref]))
+    assert A.shape[1] == 11
+    np.testing.assert_array_equal(A[:, 10], np.concatenate([effs[0].shape(y, (15.0, 0.5))[0] for y in yref]))
     t = np.concatenate([np.arange(len(r.u)) * DT for r in sc["train"]]) / 10.0
-    np.testing.assert_array_equal(A[:, 7], t)
-    beta = np.arange(10.0)
+    np.testing.assert_array_equal(A[:, 8], t)
+    beta = np.arange(11.0)
     p = fit.effect_params({"x": X[0], "th": [t[0] for t in TH], "beta": beta}, effs)
-    assert p["saturation"]["c"] == 9.0 and p["drift"] == {"d1_um": 7.0, "d2_um": 8.0}
-    assert p["creep"] == {"g_0.1s": 4.0, "g_1s": 5.0, "g_10s": 6.0}
+    assert p["saturation"]["c"] == 10.0 and p["drift"] == {"d1_um": 8.0, "d2_um": 9.0}
+    assert p["creep"] == {"g_0.1s": 4.0, "g_1s": 5.0, "g_10s": 6.0, "gamma": 7.0}
 
 
 def test_noise_floor_ignores_low_frequencies_and_transients():
