@@ -491,7 +491,7 @@ patience, polish, polish_maxfev, polish_rtol, progress, callback, x0
                         self._pbar.update(int(used))
                 else:
                     z_best, f_best = minimize_polish(self.evaluate, z_best, f_best, self.polish_method,
-                                             budget, lambda: self.nfev, self.polish_rtol)
+                                                     budget, lambda: self.nfev, self.polish_rtol)
             except KeyboardInterrupt:
                 self.message = "interrupted"
                 self.success = False

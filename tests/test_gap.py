@@ -72,6 +72,10 @@ def test_creep_columns_closed_form_step():
     law = -0.5 * sum(np.exp(-DT / tau) ** k[1:] for tau in taus)
     np.testing.assert_allclose(C[1:, 3], law, rtol=1e-12, atol=1e-14)
     assert C.shape == (1000, 4) and c.lin_names[-1] == "gamma"
+    # too short for two of the law's modes: none, and no gain for it
+    short = fx.Creep(DT, t_max=0.04)
+    assert short.log_taus == () and short.lin_names == ("g_0.01s",)
+    assert short.columns({"y_ref": h, "dt": DT, "t": np.arange(1000) * DT}, ()).shape == (1000, 1)
 
 
 def test_creep_law_recovers_a_logarithmic_creep():

@@ -61,9 +61,11 @@ class Creep(Effect):
     10 s (those the records cover), are the fractions of a step that arrive
     late with time constant τ_j. γ [per decade] is a logarithmic creep, the
     law piezo stacks follow after a step (y ∝ 1 + γ log10 t): modes τ_k at
-    half-decade steps from 31.6 ms (and at least ten samples) up to the
-    slowest free mode, each of weight w = 1/2, whose step responses add up
-    to a rise of γ per decade of time between them. All
+    half-decade steps from 31.6 ms (and at least twenty samples, as the
+    free modes) up to the slowest free mode, each of weight w = 1/2, whose
+    step responses add up to a rise of γ per decade of time between them.
+    Records too short or too coarse for two such modes have no law (a
+    single mode could be a free mode's own). All
     gains are solved linearly; the static gain is unchanged. H_ref is the
     nominal model's output (the modes are small, so driving them by the
     nominal rather than the refitted output changes the fit by second-order
@@ -97,8 +99,9 @@ class Creep(Effect):
     lin_nonneg = True
     #: Modes per decade of the logarithmic law (each of weight 1 / this).
     LOG_PER_DECADE = 2
-    #: Its fastest mode [s]: a decade and more above the lags of the
-    #: amplifier, delay and resonance blocks, and at least ten samples.
+    #: Floor of its fastest mode [s] (rounded up to the half-decade grid:
+    #: 31.6 ms), a decade and more above the lags of the amplifier, delay
+    #: and resonance blocks.
     LOG_FASTEST = 0.03
 
     def __init__(self, dt, t_max):
@@ -106,20 +109,23 @@ class Creep(Effect):
         taus = [tau for tau in CREEP_TAUS if tau <= 2.0 * t_max and tau >= 20 * dt]
         self.taus = tuple(taus or [max(20 * dt, t_max / 4)])
         k = self.LOG_PER_DECADE
-        lo = math.ceil(k * math.log10(max(self.LOG_FASTEST, 10 * dt)) - 1e-9)
+        lo = math.ceil(k * math.log10(max(self.LOG_FASTEST, 20 * dt)) - 1e-9)
         hi = math.floor(k * math.log10(max(self.taus)) + 1e-9)
-        self.log_taus = tuple(10.0 ** (i / k) for i in range(lo, hi + 1))
-        self.lin_names = tuple(f"g_{tau:g}s" for tau in self.taus) + ("gamma",)
+        law = tuple(10.0 ** (i / k) for i in range(lo, hi + 1))
+        self.log_taus = law if len(law) >= 2 else ()
+        self.lin_names = tuple(f"g_{tau:g}s" for tau in self.taus) + (("gamma",) if self.log_taus else ())
         self.units = {k: "1" for k in self.lin_names}
-        self.units["gamma"] = "1 per decade"
+        if self.log_taus:
+            self.units["gamma"] = "1 per decade"
 
     def columns(self, ctx, th):
         h, dt = ctx["y_ref"], ctx["dt"]
         cols = [first_order(h, math.exp(-dt / tau)) - h for tau in self.taus]
-        law = np.zeros_like(h)
-        for tau in self.log_taus:
-            law += first_order(h, math.exp(-dt / tau)) - h
-        cols.append(law / self.LOG_PER_DECADE)
+        if self.log_taus:
+            law = np.zeros_like(h)
+            for tau in self.log_taus:
+                law += first_order(h, math.exp(-dt / tau)) - h
+            cols.append(law / self.LOG_PER_DECADE)
         return np.column_stack(cols)
 
 

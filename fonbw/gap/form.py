@@ -126,7 +126,7 @@ REFERENCE_RELAX = ()
 #: tail to creep, seed 30015). A creep in the records would still bend μ
 #: while θ is searched without it (a Preisach core with a 97 σ creep, seed
 #: 29021: μ 0.04 → 0.60, the form lost); searched beside the creep block's
-#: time constants, as relaxations of the input, it was not (the form and
+#: free time constants, as relaxations of the input, it was not (the form and
 #: creep named, gap closed 0.970). The nominal drops those columns: what
 #: they fit is the creep candidate's.
 REFERENCE_MEMORY = 0.2
