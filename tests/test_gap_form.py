@@ -173,7 +173,9 @@ def test_reference_core_matches_the_standalone_bounded_fit():
 
     eff = [fx.Creep(1e-3, 6.0), fx.Dynamics(1e-3)]
     A = f.design(recs, np.zeros((1, 0)), eff, [np.zeros((1, 0)), np.array([[400.0, 0.2]])], zero)[0]
-    assert A.shape == (sum(len(r.u) for r in recs), active.sum() + len(eff[0].taus) + 1)  # the modes and the law
+    assert A.shape == (sum(len(r.u) for r in recs), active.sum() + len(eff[0].taus))
+    # on the reference nominal creep is its free modes, without the logarithmic law
+    assert eff[0].lin_names_on("reference") == eff[0].lin_names[:-1] == ("g_0.1s", "g_1s", "g_10s")
 
 
 def test_reduced_basis_keeps_the_fit_and_spans_the_leading_play_directions():

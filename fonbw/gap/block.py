@@ -142,8 +142,13 @@ class Effect:
         """
         return None
 
-    def describe(self, th, lin) -> dict:
-        """Parameters by name (nonlinear then linear) as plain floats."""
+    def lin_names_on(self, core: str) -> tuple:
+        """The linear parameters the block has on the nominal `core`
+        ("fonbw" or "reference"): all of :attr:`lin_names` unless a block says otherwise."""
+        return self.lin_names
+
+    def describe(self, th, lin, core: str = "fonbw") -> dict:
+        """Parameters by name (nonlinear then linear, those of the nominal `core`) as plain floats."""
         d = {k: float(v) for k, v in zip(self.names, th)}
-        d.update({k: float(v) for k, v in zip(self.lin_names, lin)})
+        d.update({k: float(v) for k, v in zip(self.lin_names_on(core), lin)})
         return d

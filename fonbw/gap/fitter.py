@@ -147,7 +147,7 @@ class Fitter:
         parts = []
         for rec, yref in zip(records, yrefs):
             B = self.base_columns(rec, X, key, first, inp)
-            ctx = {"t": np.arange(len(rec.u)) * rec.dt, "y_ref": yref, "dt": rec.dt}
+            ctx = {"t": np.arange(len(rec.u)) * rec.dt, "y_ref": yref, "dt": rec.dt, "core": self.core.name}
             # regressors of blocks without nonlinear parameters are the same for every row
             fixed = {id(e): self.fixed_columns(e, ctx) for e in effects if not e.names}
             parts.append((rec, ctx, B, fixed))
@@ -225,7 +225,7 @@ class Fitter:
                   [i for i, e in enumerate(effects) if e.output_nonlinear])
         for g in groups:
             for i in g:
-                q = len(effects[i].lin_names)
+                q = len(effects[i].lin_names_on(self.core.name))
                 out[i] = slice(k, k + q)
                 k += q
         return out
@@ -525,7 +525,7 @@ class Fitter:
     def effect_params(self, fit, effects):
         out = {}
         for e, th, sl in zip(effects, fit["th"], self.lin_slices(effects)):
-            out[e.name] = e.describe(th, fit["beta"][sl])
+            out[e.name] = e.describe(th, fit["beta"][sl], self.core.name)
         return out
 
 

@@ -107,7 +107,7 @@ class GreedySteps:
         gc = (cur["mse"] - mse) / ex if ex > 0 else 0.0
         if not math.isfinite(gc):
             gc = -math.inf  # diverged on the validation inputs
-        k = len(lib[i].names) + len(lib[i].lin_names)
+        k = len(lib[i].names) + len(lib[i].lin_names_on(self.att["core"]))
         ntr = len(self.att["fitter"].y)
         dbic = checks.bic_change(ntr, fit["rms"] ** 2, cur["mse_tr"], k)
         drop = cur["mse"] - mse
