@@ -1198,13 +1198,13 @@ def test_an_effect_needs_a_bic_drop_of_more_than_ten_on_the_training_records(mon
     monkeypatch.setattr(checks, "bootstrap", lambda *a: {"p05": 0.2, "p10": 0.3, "p50": 0.4})
     monkeypatch.setattr(checks, "loro", lambda *a: {"ratios": [0.5], "pooled_ratio": 0.5})
     n, mse_tr = 10_000, 0.01
-    block = SimpleNamespace(name="a", names=("a", "b"), lin_names=(), identified=lambda th: True, loro_slack=0.0,
+    block = SimpleNamespace(name="a", names=("a", "b"), lin_names=(), lin_names_on=lambda core: (), identified=lambda th: True, loro_slack=0.0,
                             refuses=lambda params: None, lag=False, edges_left_most=None,
                             transport_delay=False)
     me = SimpleNamespace(current={"mse": 0.02, "mse_tr": mse_tr, "pred": None, "fit": None, "eff": []},
                          lib=[block], sigma2=0.001, min_gap_closed=0.2, val_s=None, seed=0, candidates=[],
                          edges=StepEdges([], 1e-4, 1.0),
-                         att={"excess": 0.019, "fitter": SimpleNamespace(y=np.zeros(n), effect_params=lambda fit, eff: {"a": {}}),
+                         att={"core": "fonbw", "excess": 0.019, "fitter": SimpleNamespace(y=np.zeros(n), effect_params=lambda fit, eff: {"a": {}}),
                               "yref_tr": None})
 
     def checked(dbic, own=None):
@@ -1262,7 +1262,7 @@ def test_a_saturation_that_only_bends_the_top_of_the_loop_is_refused(monkeypatch
     me = SimpleNamespace(current={"mse": 0.02, "mse_tr": 0.01, "pred": None, "fit": None, "eff": []},
                          lib=[sat], sigma2=0.001, min_gap_closed=0.2, val_s=None, seed=0, candidates=[],
                          edges=StepEdges([], 1e-4, 1.0), _own_bic=lambda *a: -math.inf,  # the block is all of it
-                         att={"excess": 0.019, "yref_tr": None, "fitter": SimpleNamespace(
+                         att={"core": "fonbw", "excess": 0.019, "yref_tr": None, "fitter": SimpleNamespace(
                              y=np.zeros(10_000), effect_params=lambda fit, eff: {"saturation": dict(c_now)})})
 
     def checked(step, c):

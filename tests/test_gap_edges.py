@@ -160,7 +160,7 @@ def test_a_candidate_is_refused_for_its_own_lag_not_for_an_accepted_one(monkeypa
     monkeypatch.setattr(checks, "bootstrap", lambda *a: {"p05": 0.2, "p10": 0.3, "p50": 0.4})
     monkeypatch.setattr(checks, "loro", lambda *a: {"ratios": [0.5], "pooled_ratio": 0.5})
     amp, delay = Amplifier(DT, 100.0), Delay(DT)
-    creep = SimpleNamespace(name="creep", names=(), lin_names=("g",), lag=False, edges_left_most=None,
+    creep = SimpleNamespace(name="creep", names=(), lin_names=("g",), lin_names_on=lambda core: ("g",), lag=False, edges_left_most=None,
                             transport_delay=False,
                             loro_slack=0.0, identified=lambda th: True, refuses=lambda params: None)
     me = SimpleNamespace(current={"mse": 0.02, "mse_tr": 0.01, "pred": None, "fit": None, "eff": [amp]},
@@ -168,7 +168,7 @@ def test_a_candidate_is_refused_for_its_own_lag_not_for_an_accepted_one(monkeypa
                          candidates=[{"effect": "amplifier", "checks": {"refused": None}}],
                          edges=StepEdges(_records(_viscous_core), DT, sigma=0.001),
                          _own_bic=lambda *a: -math.inf,  # the block is all of its refit's gain
-                         att={"excess": 0.019, "yref_tr": None, "fitter": SimpleNamespace(
+                         att={"core": "fonbw", "excess": 0.019, "yref_tr": None, "fitter": SimpleNamespace(
                              y=np.zeros(10_000), effect_params=lambda fit, eff: {"creep": {}, "delay": {}})})
     slow = np.array([15.9, 1e9])
 
@@ -550,7 +550,7 @@ def test_an_amplifier_that_leaves_the_edges_misfit_is_refused_and_said_why(monke
     me = SimpleNamespace(current={"mse": 0.02, "mse_tr": 0.01, "pred": None, "fit": None, "eff": []},
                          lib=[amp, delay], sigma2=0.001, min_gap_closed=0.2, val_s=None, seed=0, candidates=[],
                          edges=StepEdges(recs, DT, sigma=0.001), _own_bic=lambda *a: -math.inf,
-                         att={"excess": 0.019, "yref_tr": [0.1 * recs[0].u], "base": {"th": []},
+                         att={"core": "fonbw", "excess": 0.019, "yref_tr": [0.1 * recs[0].u], "base": {"th": []},
                               "fitter": SimpleNamespace(y=np.zeros(10_000), records=recs, keep=None, predict=predict,
                                                         effect_params=lambda fit, eff: {"amplifier": {}, "delay": {}})})
     me._residuals_tr = lambda pred: Diagnosis._residuals_tr(me, pred)

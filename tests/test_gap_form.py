@@ -963,7 +963,7 @@ def test_an_effect_is_material_by_the_same_share_on_either_nominal(core):
     d = Diagnosis.__new__(Diagnosis)
     d.sigma2, d.min_gap_closed, d.seed, d.candidates = 0.01, 0.2, 0, []
     d.val_s, d.coverage = None, []  # no validation record faster than the training ones
-    d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], identified=lambda th: True, loro_slack=0.0,
+    d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], lin_names_on=lambda core: [], identified=lambda th: True, loro_slack=0.0,
                              refuses=lambda params: None, lag=False, edges_left_most=None,
                              transport_delay=False)]
     d.edges = StepEdges([], 1e-4, 1.0)  # records without steps
@@ -1016,7 +1016,7 @@ def test_a_later_effect_is_material_when_it_closes_much_of_what_is_left():
     d = Diagnosis.__new__(Diagnosis)
     d.sigma2, d.min_gap_closed, d.seed, d.candidates = 1.0, 0.2, 0, []
     d.val_s, d.coverage = None, []
-    d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], identified=lambda th: True, loro_slack=0.0,
+    d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], lin_names_on=lambda core: [], identified=lambda th: True, loro_slack=0.0,
                              refuses=lambda params: None, lag=False, edges_left_most=None,
                              transport_delay=False)]
     d.edges = StepEdges([], 1e-4, 1.0)  # records without steps
@@ -1054,7 +1054,7 @@ def test_an_effect_on_the_reference_is_material_on_the_records_within_the_traini
     n, s2 = 1000, 0.01
     d = Diagnosis.__new__(Diagnosis)
     d.sigma2, d.min_gap_closed, d.seed, d.candidates = s2, 0.2, 0, []
-    d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], identified=lambda th: True, loro_slack=0.0,
+    d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], lin_names_on=lambda core: [], identified=lambda th: True, loro_slack=0.0,
                              refuses=lambda params: None, lag=False, edges_left_most=None,
                              transport_delay=False)]
     d.edges = StepEdges([], 1e-4, 1.0)
@@ -1110,7 +1110,7 @@ def test_an_effect_on_the_reference_is_material_on_the_records_within_the_traini
     assert ch["failed"] == ch["refused"] and "dead time" in ch["refused"]
     d.edges = StepEdges([], 1e-4, 1.0)
     assert "within_training_rates" not in d.check_candidate(0, 0, fit, pv, checks.mse(d.val_s, pv), d.lib)
-    d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], identified=lambda th: True, loro_slack=0.0,
+    d.lib = [SimpleNamespace(name="a", names=["a"], lin_names=[], lin_names_on=lambda core: [], identified=lambda th: True, loro_slack=0.0,
                              refuses=lambda params: None, lag=False, edges_left_most=None,
                              transport_delay=False)]
     d.att["fitter"].effect_params = lambda fit, eff: {"a": {}}
