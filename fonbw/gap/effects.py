@@ -132,11 +132,13 @@ class Creep(Effect):
 
     def columns(self, ctx, th):
         h, dt = ctx["y_ref"], ctx["dt"]
-        cols = [first_order(h, math.exp(-dt / tau)) - h for tau in self.taus]
+        modes = {tau: first_order(h, math.exp(-dt / tau)) - h for tau in self.taus}
+        cols = list(modes.values())
         if self.log_taus and ctx.get("core", "fonbw") in self.LAW_CORES:
+            # the law's modes at 0.1, 1 and 10 s are the free modes' own
             law = np.zeros_like(h)
             for tau in self.log_taus:
-                law += first_order(h, math.exp(-dt / tau)) - h
+                law += modes[tau] if tau in modes else first_order(h, math.exp(-dt / tau)) - h
             cols.append(law / self.LOG_PER_DECADE)
         return np.column_stack(cols)
 
