@@ -66,8 +66,8 @@ def test_creep_columns_closed_form_step():
         a = math.exp(-DT / tau)
         # implicit Euler step response: 1 − a^k, so the column is −a^k after the step
         np.testing.assert_allclose(C[1:, j], -a ** k[1:], rtol=1e-12, atol=1e-14)
-    # the logarithmic law: half-decade modes from 31.6 ms to 10 s, weight 1/2 each
-    taus = 10.0 ** np.arange(-1.5, 1.01, 0.5)
+    # the logarithmic law: half-decade modes from 10 ms to 10 s, weight 1/2 each
+    taus = 10.0 ** np.arange(-2.0, 1.01, 0.5)
     np.testing.assert_allclose(c.log_taus, taus, rtol=1e-12)
     law = -0.5 * sum(np.exp(-DT / tau) ** k[1:] for tau in taus)
     np.testing.assert_allclose(C[1:, 3], law, rtol=1e-12, atol=1e-14)
@@ -80,9 +80,11 @@ def test_creep_columns_closed_form_step():
 
 def test_creep_law_recovers_a_logarithmic_creep():
     # truth: a logarithmic creep of γ per decade as a continuum of modes from
-    # 10 ms to 100 s (40 a decade, bilinear), on steps held 3 s and a 5-Hz
-    # sine; the block finds γ, and its free modes alone cannot follow the
-    # decades under 0.1 s
+    # 1 ms to 100 s (40 a decade, bilinear), as a stack creeps from its first
+    # milliseconds, on steps held 3 s and a 5-Hz sine; the block finds γ,
+    # and its free modes alone cannot follow the decades under 0.1 s. (A
+    # continuum cut off at 10 ms, the law's first mode, reads 22 % low: that
+    # mode stands for the quarter decade under it too.)
     from scipy import signal
 
     rng = np.random.default_rng(3)
@@ -90,7 +92,7 @@ def test_creep_law_recovers_a_logarithmic_creep():
     t = np.arange(n) * DT
     h = np.select([t < 3, t < 6, t < 9], [0.0, 8.0, 3.0], 5 + 4 * np.sin(2 * np.pi * 5 * (t - 9)))
     lag = np.zeros(n)
-    for tau in 10.0 ** np.linspace(-2.0, 2.0, 161):
+    for tau in 10.0 ** np.linspace(-3.0, 2.0, 201):
         b, a = signal.bilinear([1.0], [tau, 1.0], fs=1 / DT)
         lag += (signal.lfilter(b, a, h) - h) / 40
     c = fx.Creep(DT, 12.0)
@@ -100,11 +102,11 @@ def test_creep_law_recovers_a_logarithmic_creep():
         y = h + gamma * lag + rng.normal(0.0, noise, n)
         A = np.column_stack([h, np.ones(n), C])
         b, r = Fitter.fit_linear(A, y, nonneg=[2, 3, 4, 5])
-        assert b[5] == pytest.approx(gamma, rel=0.1)
+        assert b[5] == pytest.approx(gamma, rel=0.05)
         _, r3 = Fitter.fit_linear(A[:, :5], y, nonneg=[2, 3, 4])
         rms, rms3 = np.sqrt(np.mean(r ** 2)), np.sqrt(np.mean(r3 ** 2))
-        assert rms < 0.75 * rms3
-    assert rms < 3.5 * noise < 0.6 * rms3
+        assert rms < 0.5 * rms3
+    assert rms < 3.5 * noise < 0.4 * rms3
 
 
 def test_amplifier_block_filter_and_slew():

@@ -53,7 +53,7 @@ def test_design_equals_columns_built_from_the_model():
             s = np.arange(len(r.u)) * DT / 10.0
             cols.append(np.column_stack([(r.u / U) ** 1, (r.u / U) ** 2, (r.u / U) ** 3, h] + lp + [law, s, s * s]))
         ref = np.vstack(cols)
-        assert len(creep.log_taus) == 4 and creep.lin_names[-1] == "gamma"
+        assert len(creep.log_taus) == 5 and creep.lin_names[-1] == "gamma"
         assert A[p].shape == ref.shape == (4200, 4 + len(creep.taus) + 1 + 2)
         np.testing.assert_allclose(A[p], ref, rtol=1e-12, atol=1e-14)
 
