@@ -1239,6 +1239,40 @@ def test_an_effect_needs_a_bic_drop_of_more_than_ten_on_the_training_records(mon
     assert checked(-20.0)["passed"]
 
 
+def test_the_creep_law_is_counted_only_on_the_nominal_it_is_fitted_on(monkeypatch):
+    # the training BIC charges creep's logarithmic law (one gain) on the FONBW
+    # nominal, where it is fitted, and not on the reference nominal, where the
+    # block is its three free modes: the same refit costs log(n) more there
+    from types import SimpleNamespace
+
+    from fonbw.gap import checks
+    from fonbw.gap.attribute import Diagnosis
+    from fonbw.gap.edges import StepEdges
+
+    monkeypatch.setattr(checks, "bootstrap", lambda *a: {"p05": 0.2, "p10": 0.3, "p50": 0.4})
+    monkeypatch.setattr(checks, "loro", lambda *a: {"ratios": [0.5], "pooled_ratio": 0.5})
+    creep = fx.Creep(DT, t_max=6.0)
+    n, mse_tr, rms = 10_000, 0.01, 0.09
+    seen, out = {}, {}
+    for core in ("fonbw", "reference"):
+        me = SimpleNamespace(current={"mse": 0.02, "mse_tr": mse_tr, "pred": None, "fit": None, "eff": []},
+                             lib=[creep], sigma2=0.001, min_gap_closed=0.2, val_s=None, seed=0, candidates=[],
+                             edges=StepEdges([], 1e-4, 1.0),
+                             att={"core": core, "excess": 0.019, "yref_tr": None, "fitter": SimpleNamespace(
+                                 y=np.zeros(n), effect_params=lambda fit, eff: {"creep": {}})})
+
+        def own_bic(fit, eff, k, ntr, core=core):
+            seen[core] = k
+            return -1e3
+
+        me._own_bic = own_bic
+        out[core] = Diagnosis.check_candidate(me, 0, 0, {"rms": rms, "th": [np.zeros(0)]}, None, 0.012, [creep])
+    assert seen == {"fonbw": 4, "reference": 3}
+    fit_term = n * math.log(rms ** 2 / mse_tr)
+    assert out["fonbw"]["delta_bic"] == pytest.approx(fit_term + 4 * math.log(n), rel=1e-12)
+    assert out["reference"]["delta_bic"] == pytest.approx(fit_term + 3 * math.log(n), rel=1e-12)
+
+
 def test_a_saturation_that_only_bends_the_top_of_the_loop_is_refused(monkeypatch):
     # slope drops measured on the blind harness: saturations fitted on cores
     # without one (their envelopes) dropped it by 0.04 to 0.57 (seed 29029);
