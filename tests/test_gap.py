@@ -76,6 +76,8 @@ def test_creep_columns_closed_form_step():
     short = fx.Creep(DT, t_max=0.04)
     assert short.log_taus == () and short.lin_names == ("g_0.01s",)
     assert short.columns({"y_ref": h, "dt": DT, "t": np.arange(1000) * DT}, ()).shape == (1000, 1)
+    # at 1 kHz twenty samples are 20 ms: the law starts at the next grid mode
+    assert fx.Creep(1e-3, t_max=6.0).log_taus[0] == pytest.approx(10 ** -1.5, rel=1e-12)
 
 
 def test_creep_law_recovers_a_logarithmic_creep():
@@ -105,7 +107,7 @@ def test_creep_law_recovers_a_logarithmic_creep():
         assert b[5] == pytest.approx(gamma, rel=0.05)
         _, r3 = Fitter.fit_linear(A[:, :5], y, nonneg=[2, 3, 4])
         rms, rms3 = np.sqrt(np.mean(r ** 2)), np.sqrt(np.mean(r3 ** 2))
-        assert rms < 0.5 * rms3
+        assert rms < 0.6 * rms3
     assert rms < 3.5 * noise < 0.4 * rms3
 
 
@@ -1242,7 +1244,8 @@ def test_an_effect_needs_a_bic_drop_of_more_than_ten_on_the_training_records(mon
 def test_the_creep_law_is_counted_only_on_the_nominal_it_is_fitted_on(monkeypatch):
     # the training BIC charges creep's logarithmic law (one gain) on the FONBW
     # nominal, where it is fitted, and not on the reference nominal, where the
-    # block is its three free modes: the same refit costs log(n) more there
+    # block is its three free modes: the same refit costs log(n) more on the
+    # FONBW nominal
     from types import SimpleNamespace
 
     from fonbw.gap import checks

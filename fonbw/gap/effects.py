@@ -89,17 +89,18 @@ class Creep(Effect):
     nominal too, the law took up the demo bench's mechanical lag on the 10-
     and 20-Hz sines from 3.2 ms or 10 ms (from 3.2 ms it closed 0.46 of
     what the form left, a resonance then made the validation worse, and
-    none was named), and from 31.6 ms on ``--quick``'s shorter records the
+    no resonance was named), and from 31.6 ms on ``--quick``'s shorter records the
     bench core's own rate dependence (its rate filter has τ = 20 ms),
     which the reference leaves. So the law is there on the FONBW nominal
     only (:attr:`LAW_CORES`), whose fractional orders are what takes up a
     creep's fast decades; on the reference nominal the block is its free
     modes alone (:meth:`lin_names_on`), and the demo's diagnoses, full and
     ``--quick``, are those of the free modes to the last digit shown. On
-    the FONBW nominal it starts at 10 ms: on the FONBW creeps of spent blind-harness scenarios
-    its γ comes out nearer the truth's than from 31.6 ms (0.079 and 0.088
-    against 0.091 and 0.097 where 0.057 and 0.069, seeds 48039 and 53017;
-    BENCHMARKS.md, "A logarithmic creep law").
+    the FONBW nominal the law starts at 10 ms where twenty samples allow it
+    (at 2 kHz and faster): on the FONBW creeps of spent blind-harness
+    scenarios its γ comes out nearer the truth's than from 31.6 ms (0.079
+    and 0.088 against 0.091 and 0.097; from 31.6 ms 0.057 and 0.069; seeds
+    48039 and 53017; BENCHMARKS.md, "The creep law from 10 ms").
     """
 
     name = "creep"
@@ -108,9 +109,10 @@ class Creep(Effect):
     LOG_PER_DECADE = 2
     #: The nominals the law is fitted on.
     LAW_CORES = ("fonbw",)
-    #: Floor of its fastest mode [s] (rounded up to the half-decade grid),
-    #: a decade above the sample-scale lags of the delay and amplifier
-    #: blocks.
+    #: Floor of its fastest mode [s] (rounded up to the half-decade grid):
+    #: a stack's logarithmic creep runs from its first milliseconds, and a
+    #: law from 31.6 ms read its γ low; the law's first mode stands for the
+    #: quarter decade under it too.
     LOG_FASTEST = 0.01
 
     def __init__(self, dt, t_max):
