@@ -89,9 +89,9 @@ class Creep(Effect):
     nominal too, the law took up the demo bench's mechanical lag on the 10-
     and 20-Hz sines from 3.2 ms or 10 ms (from 3.2 ms it closed 0.46 of
     what the form left, a resonance then made the validation worse, and
-    no resonance was named), and from 31.6 ms on ``--quick``'s shorter records the
-    bench core's own rate dependence (its rate filter has τ = 20 ms),
-    which the reference leaves. So the law is there on the FONBW nominal
+    no resonance was named), and from 31.6 ms on ``--quick``'s shorter
+    records the bench core's own rate dependence (its rate filter has
+    τ = 20 ms), which the reference leaves. So the law is there on the FONBW nominal
     only (:attr:`LAW_CORES`), whose fractional orders are what takes up a
     creep's fast decades; on the reference nominal the block is its free
     modes alone (:meth:`lin_names_on`), and the demo's diagnoses, full and
