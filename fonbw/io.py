@@ -146,7 +146,7 @@ def decimate(rec: Record, q: int) -> Record:
         return rec
     keep = lambda a: None if a is None else a[::q]
     return Record(t=rec.t[::q], u=keep(rec.u), y=keep(rec.y), dt=rec.dt * q,
-                  path=rec.path + f" (every {q}th sample)", hd=keep(rec.hd))
+                  path=rec.path + f" (one sample in {q})", hd=keep(rec.hd))
 
 
 def read_record(path, need: Iterable[str] = ("u", "y"), jitter_tol: float = 1e-3, *, columns=None,

@@ -782,6 +782,8 @@ def test_decimate_keeps_every_qth_sample():
     (d,) = decimate([r], 5)
     assert d.dt == pytest.approx(5 * DT)
     np.testing.assert_array_equal(d.u, [0, 5, 10, 15])
+    # the name a report shows for it
+    assert d.path == f"{r.path} (one sample in 5)"
 
 
 # ---------------------------------------------------------------------------
