@@ -189,8 +189,7 @@ class GreedySteps:
         """
         if self.att["core"] != "reference" or not self._judged_within_rates(block):
             return None
-        fast = {f["index"] for f in self.coverage if f["condition"] in checks.RATE_CONDITIONS}
-        idx = [j for j in range(len(self.val_s)) if j not in fast] if fast else []
+        idx = checks.within_rates(self.coverage, self.val_s)
         if not idx:
             return None
 
