@@ -266,7 +266,13 @@ def beyond_text(beyond):
     p, name = beyond["params"], beyond["effect"]
     what = (f"a rail at {p['level']:.4g} V (knee {p['knee']:.2g} V)" if name == "clip" else
             f"a stroke limit at {p['knee']:.4g} µm (slope factor {1 + p['c']:.2g} above it)")
-    return (f"{name}: {what} closes {beyond['gap_closed']:.2f} of what the model left, fitted on the "
+    w = beyond.get("within_training_rates")
+    # judged within the training rates (fonbw.gap.beyond._judged): the share
+    # there decided, the whole gap's is what the waterfall shows
+    share = (f"closes {w['gap_closed']:.2f} of what the model left on {', '.join(w['records'])}, the validation "
+             f"records past the training range within its rates ({beyond['gap_closed']:.2f} of what it left on "
+             "all)" if w else f"closes {beyond['gap_closed']:.2f} of what the model left")
+    return (f"{name}: {what} {share}, fitted on the "
             f"validation records where they go past the training range (chosen on alternate "
             f"{beyond['fold_s']:g}-s blocks and scored on the others"
             + (", each record's blocks shifted to split its samples out there" if beyond.get("folds_shifted") else "")
