@@ -38,7 +38,11 @@ class DiagnosisResult(Mapping):
         ``coverage``, ``params``, ``later_steps`` (every candidate of each
         greedy step after the first, with its checks), ``within_training_rates``
         (accepted effects judged on the validation records within the
-        training records' input rates), ``message``.
+        training records' input rates), ``beyond_training`` (a rail or a
+        stroke limit cross-fitted where only the validation records go past
+        the training range: :func:`fonbw.gap.beyond.beyond_training`, whose
+        own ``within_training_rates`` gives the share on the records it was
+        judged on, the whole gap's being its ``gap_closed``), ``message``.
     timing : dict
         Wall-clock time of the stages [s].
     records : dict

@@ -267,13 +267,19 @@ def beyond_text(beyond):
     what = (f"a rail at {p['level']:.4g} V (knee {p['knee']:.2g} V)" if name == "clip" else
             f"a stroke limit at {p['knee']:.4g} µm (slope factor {1 + p['c']:.2g} above it)")
     w = beyond.get("within_training_rates")
-    # judged within the training rates (fonbw.gap.beyond._judged): the share
-    # there decided, the whole gap's is what the waterfall shows
-    share = (f"closes {w['gap_closed']:.2f} of what the model left on {', '.join(w['records'])}, the validation "
-             f"records past the training range within its rates ({beyond['gap_closed']:.2f} of what it left on "
-             "all)" if w else f"closes {beyond['gap_closed']:.2f} of what the model left")
-    return (f"{name}: {what} {share}, fitted on the "
-            f"validation records where they go past the training range (chosen on alternate "
+    if w:
+        # judged within the training rates (fonbw.gap.beyond._judged_records):
+        # the share there decided, the whole gap's is what the waterfall shows
+        one = len(w["records"]) == 1
+        share = (f"closes {w['gap_closed']:.2f} of what the model left on {', '.join(w['records'])} (the "
+                 f"validation record{'' if one else 's'} within the training rates that "
+                 f"go{'es' if one else ''} past the training range; {beyond['gap_closed']:.2f} of what it left on "
+                 f"all), fitted on {'it where it goes' if one else 'them where they go'} past the training range "
+                 "(chosen on alternate ")
+    else:
+        share = (f"closes {beyond['gap_closed']:.2f} of what the model left, fitted on the validation records "
+                 "where they go past the training range (chosen on alternate ")
+    return (f"{name}: {what} {share}"
             f"{beyond['fold_s']:g}-s blocks and scored on the others"
             + (", each record's blocks shifted to split its samples out there" if beyond.get("folds_shifted") else "")
             + "); a training record that reaches it "
