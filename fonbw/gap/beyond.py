@@ -52,12 +52,12 @@ closed; the stage, now run on seven of them, refused (closing 0.00 or less)
 everything it tried there.
 
 On the reference nominal a limit is chosen and judged on the validation
-records within the training rates that go past the training amplitudes
-(:func:`_judged_records`), as the greedy steps judge a block that is no lag: the
-reference extrapolates a rate-dependent core's rate dependence on a faster
-sine and leaves most of its gap there, where a limit changes little, and a
-record that stays within the training amplitudes holds nothing a limit
-beyond them changes. The share that names it is of what the model leaves on
+records within the training rates that go past the training's largest
+command (:func:`_judged_records`), as the greedy steps judge a block that is
+no lag: the reference extrapolates a rate-dependent core's rate dependence
+on a faster sine and leaves most of its gap there, where a limit changes
+little, and a record that stays under that command holds nothing a limit
+above it changes. The share that names it is of what the model leaves on
 those records; the waterfall and ``gap_closed`` keep the whole gap's.
 Rediagnosed on 90 spent held-out scenarios (every rate-dependent core of seeds
 55000-62039 and 22 Preisach and Prandtl-Ishlinskii nulls or effects below the
