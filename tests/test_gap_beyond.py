@@ -2,6 +2,7 @@
 the folds and the cross-fit against hand-computed values, and a rail that only
 the validation records reach, diagnosed on the separate truth simulator."""
 import re
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -307,8 +308,8 @@ class _Stage(_Identity):
         self.coverage, self.excess0 = flags, mse - self.sigma2
         self.at_floor, self.floor_tol, self.accepted, self.max_effects = False, 0.2, [], 3
         self.lib = [fx.Clip(114.8)]
-        self.rs = type("Starts", (), {"raw": {"train": [Record.from_arrays(u=np.r_[0.0, 114.8],
-                                                                          y=np.r_[0.0, 114.8], dt=dt)]}})()
+        top = Record.from_arrays(u=np.r_[0.0, 114.8], y=np.r_[0.0, 114.8], dt=dt)
+        self.rs = SimpleNamespace(raw={"train": [top]})
         self.steps, self.timing = [], {}
 
     def say(self, *a):
