@@ -132,6 +132,11 @@ class Effect:
         """
         return True
 
+    def lag_s(self, th) -> float | None:
+        """The lag [s] parameters `th` put on a slow sine (the phase over ω as
+        ω → 0) for a lag block; None for a block that is none."""
+        return None
+
     def refuses(self, params) -> str | None:
         """Why fitted `params` (:meth:`describe`) are not this block's effect
         but something it imitates, in words; None when they are its own.
