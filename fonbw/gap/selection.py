@@ -145,7 +145,11 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         The greedy steps after the first, reported as they are: each with
         ``on_top_of`` (the effects accepted before it), ``rms_validate``
         [µm] of that configuration, ``accepted`` (the effect it added, or
-        None) and ``candidates`` (entries like the first step's).
+        None) and ``candidates`` (entries like the first step's); a step
+        whose lags an accepted amplifier's own pole explains also has
+        ``own_pole`` (its ``params``, ``rms_train`` [µm] and ``gap_closed``:
+        :meth:`fonbw.gap.greedy.GreedySteps._own_pole`), and the waterfall a
+        step "+amplifier's own pole".
     tones : list of dict, optional
         Narrow lines in what the final model leaves that its own output lacks
         (:func:`fonbw.gap.localize.tones`: ``hz``, ``share``).
