@@ -141,7 +141,8 @@ def diagnose(train_records, validate_records, model=None, seed=0, progress=False
     effects : sequence of str
         Candidate blocks (:data:`fonbw.gap.effects.EFFECTS`).
     max_effects : int
-        Greedy steps.
+        Most effects the greedy steps accept (a step where an accepted
+        amplifier takes a pole of its own accepts none).
     min_gap_closed : float
         Part of the excess gap an effect must close to be material at the
         first greedy step (half of it at later steps), on either nominal: the

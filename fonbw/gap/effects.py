@@ -368,19 +368,23 @@ class Amplifier(Effect):
         s = np.geomspace(U / 0.1, 10.0 * U / dt, 8)
         self.grid = np.array([(a, b) for a in f for b in s])
 
-    #: Whether the block has a pole of its own before the RC stage (:meth:`with_own_pole`).
+    #: Whether the block has a pole of its own before the RC stage, and the
+    #: block it was made from (:meth:`with_own_pole`).
     own_pole = False
+    one_pole = None
 
     def with_own_pole(self, th):
         """This amplifier with a pole of its own, f_pole [Hz], ahead of its RC
         stage: the driver's small-signal bandwidth, which a capacitive load's
         pole hides until the steps' first milliseconds. Its lag is a small
         delay's on every record a fit sees (a pole at 1/(2π d) lags a sine of
-        f ≪ 1/d by d within a per cent), so a delay or a lag-only resonance
+        f ≪ 1/d by d within a per cent), so a delay or a resonance
         fitted on top of a one-pole amplifier is asked against it
         (:meth:`fonbw.gap.greedy.GreedySteps._own_pole`). Its grid: the
-        one-pole fit `th` (f_c, slew) with its lag shared between the two
-        poles (:data:`POLE_SHARES`)."""
+        one-pole fit `th` (f_c [Hz], slew [V/s]) with its lag shared between
+        the two poles (:data:`POLE_SHARES`)."""
+        if self.own_pole:
+            raise ValueError("the amplifier block has its own pole already")
         out = copy.copy(self)
         out.own_pole, out.one_pole = True, self
         out.names = self.names + ("f_pole",)
@@ -389,10 +393,14 @@ class Amplifier(Effect):
         out.log_scale = self.log_scale + [True]
         # the one-pole fit's lag on the sines, 1/(2π f_c), split between the
         # two poles: a share s to the new one
-        tau = 1.0 / (2.0 * math.pi * float(th[0]))
+        tau = self.lag_s(th)
         out.grid = np.clip([(1.0 / (2.0 * math.pi * (1.0 - s) * tau), th[1], 1.0 / (2.0 * math.pi * s * tau))
                             for s in POLE_SHARES], *np.array(out.bounds).T)
         return out
+
+    def lag_s(self, th):
+        lag = 1.0 / (2.0 * math.pi * float(th[0]))
+        return lag + 1.0 / (2.0 * math.pi * float(th[2])) if self.own_pole else lag
 
     def transform_input(self, u, dt, th):
         u = np.ascontiguousarray(u, dtype=float)

@@ -7,7 +7,8 @@ candidates (and of each later greedy step's, with the check each one
 failed), the hysteresis form with the loop-shape residual (FONBW's and
 the reference's residual versus the input; needs the result object) and a
 waterfall nominal → form → +effect … → noise floor (the form after the
-effects when it was found on top of them), all from the result alone (a :class:`fonbw.gap.DiagnosisResult` or its ``to_dict()``); the
+effects when it was found on top of them; a step where an accepted
+amplifier takes a pole of its own), all from the result alone (a :class:`fonbw.gap.DiagnosisResult` or its ``to_dict()``); the
 PNGs are embedded as base64, so the page is one file.
 """
 from __future__ import annotations
@@ -155,6 +156,13 @@ def _beyond_cell(r):
     return f" ({100 * b['gap']:.0f} % of its gap on the {100 * b['samples']:.0f} % of samples out of range)"
 
 
+def _step_outcome(st):
+    """What a later greedy step (an entry of ``later_steps``) added, in words."""
+    if st.get("own_pole"):
+        return f"the amplifier takes a pole of its own at {st['own_pole']['params']['f_pole']:.4g} Hz"
+    return "+" + st["accepted"] if st["accepted"] else "nothing added"
+
+
 def write_html(result, path):
     """Write a self-contained HTML report of a :func:`fonbw.gap.diagnose` result."""
     figs = _figures(result)
@@ -164,7 +172,7 @@ def write_html(result, path):
     rows = [_candidate_row(c) for c in result["candidates"]]
     later = "".join(
         f"<h3>On top of {esc(', '.join(st['on_top_of']))} (val. RMS {st['rms_validate']:.4g} µm): "
-        f"{esc('+' + st['accepted'] if st['accepted'] else 'nothing added')}</h3>"
+        f"{esc(_step_outcome(st))}</h3>"
         f"<table>{_CANDIDATE_HEAD}{''.join(_candidate_row(c) for c in st['candidates'])}</table>"
         for st in v.get("later_steps", []))
     recs = "".join(
