@@ -989,7 +989,7 @@ def test_blind_amplifier_lag_is_not_taken_for_a_delay():
 
 def test_a_lag_on_top_of_an_amplifier_is_first_its_own_pole(tmp_path):
     # a 30-Hz amplifier whose driver has a pole of its own at 120 Hz, no slew
-    # limit: on top of the one-pole block a delay and a lag-only resonance
+    # limit: on top of the one-pole block a delay and a resonance
     # each close a little more (both named without the pole: amplifier, delay).
     # The amplifier with a pole of its own fits the training records better,
     # takes the one-pole block's place, and the two lags, tried again on top
