@@ -487,7 +487,7 @@ def _judged_records(d, ctx):
     """
     if d.att["core"] != "reference":
         return None, None
-    idx = sorted(set(checks.within_rates(d.coverage, d.val_s)) & _past_top(d.coverage))
+    idx = sorted(set(checks.within_rates(d.coverage, d.val_s)) & checks.records_past_top(d.coverage))
     if not idx:
         return None, None
     mask = np.concatenate([np.full(len(r.y), j in idx) for j, r in enumerate(d.val_s)])
@@ -515,12 +515,6 @@ def _score(d, ctx, blocks, lib, judged, before, left):
             t["gap_closed_within"] = gc if math.isfinite(gc) else -math.inf
         tried[name] = t
     return tried
-
-
-def _past_top(flags):
-    """Indices of the validation records that :func:`fonbw.gap.checks.coverage`
-    flags (among `flags`) past the training's largest command."""
-    return {f["index"] for f in flags if f["condition"] == "u_max"}
 
 
 def pick(tried, mse, sigma2, overruled_by=None):

@@ -16,8 +16,8 @@ import math
 import numpy as np
 
 __all__ = ["at_floor", "CONDITIONS", "RATE_CONDITIONS", "AMPLITUDE_TOL", "MIN_DROP", "LATE_SHARE", "LATE_DROP", "BIC_EVIDENCE",
-           "OWN_SHARE", "material", "bic_change", "lacks_evidence", "coverage", "top_passed", "within_rates",
-           "longest_run", "flag_text", "loro_passes", "remaining", "mse", "bootstrap", "loro"]
+           "OWN_SHARE", "material", "bic_change", "lacks_evidence", "coverage", "top_passed", "records_past_top",
+           "within_rates", "longest_run", "flag_text", "loro_passes", "remaining", "mse", "bootstrap", "loro"]
 
 
 #: What each :func:`coverage` condition measures, and its unit.
@@ -192,6 +192,12 @@ def top_passed(flags):
     """The training records' largest input [V] when a validation record drives
     past it (a ``u_max`` flag of :func:`coverage` among `flags`), else None."""
     return next((f["train"] for f in flags if f["condition"] == "u_max"), None)
+
+
+def records_past_top(flags):
+    """Indices of the validation records that :func:`coverage` flags (among
+    `flags`) past the training's largest command."""
+    return {f["index"] for f in flags if f["condition"] == "u_max"}
 
 
 def within_rates(flags, records):

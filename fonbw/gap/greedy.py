@@ -107,7 +107,7 @@ class GreedySteps:
         gc = (cur["mse"] - mse) / ex if ex > 0 else 0.0
         if not math.isfinite(gc):
             gc = -math.inf  # diverged on the validation inputs
-        k = len(lib[i].names) + len(lib[i].lin_names_on(self.att["core"]))
+        k = _n_params(lib[i], self.att["core"])
         ntr = len(self.att["fitter"].y)
         dbic = checks.bic_change(ntr, fit["rms"] ** 2, cur["mse_tr"], k)
         drop = cur["mse"] - mse
@@ -292,8 +292,7 @@ class GreedySteps:
         ntr, cur, gc = len(self.att["fitter"].y), self.current, pole["summary"]["gap_closed"]
         matched = []
         for r in lags:
-            block = self.lib[r["i"]]
-            extra = len(block.names) + len(block.lin_names_on(self.att["core"])) - 1
+            extra = _n_params(self.lib[r["i"]], self.att["core"]) - 1
             if checks.bic_change(ntr, r["fit"]["rms"] ** 2, pole["fit"]["rms"] ** 2, extra) >= 0:
                 matched.append(r)
         if not (matched and gc is not None
@@ -318,8 +317,7 @@ class GreedySteps:
         step's entry of ``later_steps``. No effect is named by it."""
         cur, j = self.current, pole["j"]
         self.lib[cur["idx"][j]] = pole["eff"][j]
-        self.current = {"fit": pole["fit"], "eff": pole["eff"], "idx": cur["idx"], "mse": pole["mse"],
-                        "mse_tr": pole["fit"]["rms"] ** 2, "pred": pole["pv"]}
+        self.current = _configuration(pole["fit"], pole["eff"], cur["idx"], pole["mse"], pole["pv"])
         self.steps.append({"label": "+amplifier's own pole", "rms_validate": math.sqrt(pole["mse"])})
         self.later_steps[-1]["own_pole"] = pole["summary"]
         self.say(f"the amplifier takes a pole of its own at {pole['params']['f_pole']:.4g} Hz: gap closed "
@@ -444,8 +442,7 @@ class GreedySteps:
         # a second attribution (on the reference nominal, fonbw.gap.form) asks
         # for the amplifier's own pole afresh, on its own nominal
         self.lib[:] = [(e.one_pole or e) if e.name == "amplifier" else e for e in self.lib]
-        self.current = {"fit": a["base"], "eff": [], "idx": [], "mse": a["mse"],
-                        "mse_tr": a["base"]["rms"] ** 2, "pred": a["pred"]}
+        self.current = _configuration(a["base"], [], [], a["mse"], a["pred"])
         self.candidates, self.accepted, self.later_steps, self.within_rates = [], [], [], {}
         self.edges = StepEdges(self.rs.raw["train"], self.dt, math.sqrt(self.sigma2))
         self.steps = [{"label": "nominal", "rms_validate": math.sqrt(self.mse0)}]
@@ -492,12 +489,24 @@ class GreedySteps:
                 self.within_rates[name] = {"records": [str(self.val_s[j].path) for j in w["records"]],
                                            "gap_closed": w["gap_closed"],
                                            "gap_closed_all": best["checks"]["gap_closed_step"]}
-            self.current = {"fit": best["fit"], "eff": best["eff"], "idx": self.current["idx"] + [best["i"]],
-                            "mse": best["mse"], "mse_tr": best["fit"]["rms"] ** 2, "pred": best["pv"]}
+            self.current = _configuration(best["fit"], best["eff"], self.current["idx"] + [best["i"]], best["mse"],
+                                          best["pv"])
             self.steps.append({"label": "+" + name, "rms_validate": math.sqrt(best["mse"])})
             pool = selection.retry_pool(pool, best["i"], results, first_step=step == 0)
             step += 1
         self.timing["attribute_s"] = time.perf_counter() - t0
+
+
+def _n_params(block, core):
+    """Parameters `block` adds on the nominal `core`, nonlinear and linear, as the BIC counts them."""
+    return len(block.names) + len(block.lin_names_on(core))
+
+
+def _configuration(fit, eff, idx, mse, pred):
+    """A configuration the greedy steps build on: the joint `fit` of the
+    effect blocks `eff` (library indices `idx`), its validation MSE [µm²] and
+    predictions, and its training MSE."""
+    return {"fit": fit, "eff": eff, "idx": idx, "mse": mse, "mse_tr": fit["rms"] ** 2, "pred": pred}
 
 
 def _refused(block, step, params, first):
