@@ -315,7 +315,8 @@ def _later_steps_text(steps):
     """The later greedy steps as a table: why a further effect was or was not named."""
     from .gap.selection import outcome_text
 
-    rows = [[", ".join(st["on_top_of"]), c["effect"], _gc(c), outcome_text(c)]
+    rows = [[", ".join(st["on_top_of"]) + (" (beyond training)" if st.get("beyond_training") else ""),
+             c["effect"], _gc(c), outcome_text(c)]
             for st in steps for c in st["candidates"]]
     if not rows:
         return ""

@@ -13,6 +13,7 @@ from fonbw.gap import effects as fx
 from fonbw.gap.beyond import (FOLD_S, MIN_SAMPLES, SHARE, _rail, _stroke_limit, beyond_training, borne_out, cross_fit,
                               folds, pick, shifted_folds)
 from fonbw.gap.checks import LATE_DROP
+from fonbw.gap.report import write_html
 from fonbw.gap.selection import beyond_text, outcome_text
 from fonbw.io import Record
 
@@ -372,3 +373,73 @@ def test_a_rail_is_judged_on_the_slow_records_past_the_range_on_the_reference(co
     assert (f"closes {w['gap_closed']:.2f} of what the model left on sine01 (the validation record within the "
             f"training rates that goes past the training range; {whole:.2f} of what it left on all), fitted on it "
             "where it goes past the training range (chosen on alternate 0.5-s blocks") in text
+
+
+@pytest.fixture(scope="module")
+def amplifier_behind_a_stroke_limit():
+    # blind-harness scenario 64035 on half-length records: a Preisach core, a
+    # stroke limit that only the 1-Hz validation sine drives past (10.6 σ)
+    # and an 8.9 σ amplifier, which the limit's share of the validation gap
+    # hides at the first greedy step
+    from gap_cores import FAMILIES
+    seed = 64035
+    sc = tr.draw_scenario(seed, family=tr.scenario_family(seed, tuple(FAMILIES)), mid_drive=0.3, scale=0.5)
+    assert set(sc["injected"]) == {"saturation", "amplifier"}
+    return sc, diagnose(sc["train"], sc["validate"], seed=seed, workers=1, **FAST).to_dict()
+
+
+def test_an_effect_a_limit_beyond_the_training_range_hid_is_named_after_it(amplifier_behind_a_stroke_limit, tmp_path):
+    sc, res = amplifier_behind_a_stroke_limit
+    v = res["verdict"]
+    b = v["beyond_training"]
+    assert b["effect"] == "saturation" and b["then"] == "amplifier"
+    assert v["effects"][-2:] == ["saturation", "amplifier"]
+    # at the first step the amplifier closed too little of the whole gap,
+    # though it fitted the training records far better
+    first = next(c for c in res["candidates"] if c["effect"] == "amplifier")
+    assert first["checks"]["failed"] == "closes too little" and first["gap_closed"] < 0.2
+    assert first["checks"]["delta_bic"] < -1e4 and first["accepted"]
+    # judged again on top of the limit, where it passed every check
+    st = v["later_steps"][-1]
+    assert st["beyond_training"] == "saturation" and st["accepted"] == "amplifier"
+    amp = next(c for c in st["candidates"] if c["effect"] == "amplifier")
+    assert amp["checks"]["passed"] and amp["checks"]["bootstrap"]["p10"] > 0
+    assert amp["checks"]["loro"]["pooled_ratio"] < 1.0
+    # the lags that share its trace are refused at the step edges there
+    for name in ("delay", "dynamics"):
+        c = next(c for c in st["candidates"] if c["effect"] == name)
+        assert not c["accepted"] and "step edges" in c["checks"]["failed"]
+    # the waterfall: the limit, then the amplifier, each lowering the validation RMS
+    labels = [w["step"] for w in v["waterfall"]]
+    assert labels[-3:] == ["+saturation beyond training", "+amplifier", "noise floor"]
+    lim, then = v["waterfall"][-3], v["waterfall"][-2]
+    assert then["rms_validate"] < lim["rms_validate"]
+    assert then["gap_closed_cum"] == pytest.approx(v["gap_closed"], abs=1e-12)
+    assert st["rms_validate"] == pytest.approx(lim["rms_validate"], rel=1e-12)
+    # the amplifier's corner against the truth's (one pole for the truth's
+    # two, the drive's own at 4 f_c and the load's RC: 570 Hz against 559 Hz),
+    # and the limit's knee on the final model within the truth's corner
+    # (its tanh from the knee to the knee + width)
+    f_c = sc["injected"]["amplifier"]["params"]["f_c"]
+    assert v["params"]["amplifier"]["f_c"] == pytest.approx(f_c, rel=0.25)
+    knee, width = (sc["injected"]["saturation"]["params"][k] for k in ("knee", "width"))
+    assert knee < b["params"]["knee"] < knee + width
+    assert "saturation, amplifier" in v["message"]
+    write_html(res, tmp_path / "gap.html")
+    assert "On top of saturation named beyond the training range (val. RMS" in (tmp_path / "gap.html").read_text()
+
+
+@pytest.mark.parametrize("accepted, same", [(["delay"], True), ([], False)])
+def test_only_a_first_step_that_named_nothing_on_the_limits_model_is_judged_again(accepted, same):
+    # a step after accepted effects, or one tried on another configuration
+    # (a form named with no effect after it), is left as it was: no limit is
+    # cross-fitted on any of its candidates and no later step is recorded
+    from fonbw.gap.hidden import judge_again
+    before = {"idx": [], "mse": 1.0, "pred": [np.zeros(4)]}
+    hid = {"i": 0, "checks": {"failed": "closes too little"}, "mse": 0.9}
+    d = SimpleNamespace(open_step={"step": len(accepted), "on": before if same else dict(before),
+                                   "results": [hid]},
+                        beyond={"effect": "clip", "then": None}, accepted=accepted, max_effects=3,
+                        lib=[fx.Amplifier(2e-4, 120.0)], later_steps=[], steps=[])
+    judge_again(d, before, {})
+    assert d.beyond["then"] is None and d.later_steps == [] and d.steps == []

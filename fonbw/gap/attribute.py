@@ -86,6 +86,7 @@ from . import effects as fx
 from . import selection
 from .fitter import KIND, Fitter, decimate
 from .greedy import GreedySteps
+from .hidden import judge_again
 from .localize import localize, noise_floor, tones
 from .nominal import NominalStage
 from .result import DiagnosisResult
@@ -377,8 +378,10 @@ class Diagnosis(NominalStage, GreedySteps):
         """The :class:`DiagnosisResult` of the finished stages."""
         beyond = self.beyond
         named = [beyond["effect"]] if beyond and beyond["effect"] else []
+        # an effect the limit hid, named after it (fonbw.gap.hidden)
+        then = [beyond["then"]] if named and beyond.get("then") else []
         for c in self.candidates:
-            c["accepted"] = c["effect"] in self.accepted + named
+            c["accepted"] = c["effect"] in self.accepted + named + then
             if c["effect"] in named:
                 # its training fit failed; the verdict names it from the validation records
                 c["beyond_training"] = True
@@ -388,7 +391,7 @@ class Diagnosis(NominalStage, GreedySteps):
         if named:
             params[named[0]] = beyond["params"]
         verdict = selection.verdict(
-            self.accepted + named, mse0=self.mse0, mse=self.current["mse"], excess0=self.excess0,
+            self.accepted + named + then, mse0=self.mse0, mse=self.current["mse"], excess0=self.excess0,
             at_floor=self.at_floor, steps=self.steps, coverage=self.coverage, params=params,
             form=self.form, start=self.rs.report(),
             remaining=checks.remaining(self.val_s, self.current["pred"], self.sigma2, self.coverage),
@@ -447,13 +450,16 @@ class Diagnosis(NominalStage, GreedySteps):
             self.form_stage()
             self.attribute()
             fm.judge_on_effects(self)
-            beyond_training(self)
+            named = beyond_training(self)
+            if named is not None:
+                judge_again(self, *named)
         self.pool = None
         return self.result()
 
     def __getstate__(self):
         # a worker gets the diagnosis without the pool (pipes, processes)
-        return {**self.__dict__, "pool": None}
+        # nor the refits of a step that named nothing, which no worker reads
+        return {**self.__dict__, "pool": None, "open_step": None}
 
 
 def _as_records(recs, what):

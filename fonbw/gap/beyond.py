@@ -80,7 +80,7 @@ import numpy as np
 from . import checks
 
 __all__ = ["FOLD_S", "SHARE", "MIN_SAMPLES", "BORNE_OUT", "folds", "shifted_folds", "cross_fit", "borne_out",
-           "rail_prediction", "pick", "beyond_training"]
+           "rail_prediction", "pick", "beyond_training", "limit_on", "mean_params", "BLOCKS"]
 
 #: Length [s] of the alternate blocks of the two folds: 10 periods of the
 #: harness's 20-Hz validation sine, half a period of its 1-Hz one.
@@ -358,8 +358,16 @@ def beyond_training(d):
     training range, :func:`_layout`: their names and the named limit's
     share of what the model left on them, or None) and ``tried`` (each
     block's share, ``gap_closed_within`` when so judged, fold parameters
-    and refusal)) and, when a limit is named, ``d.current``'s validation
+    and refusal), ``then`` (None; an effect the limit hid at the first
+    greedy step, set by :func:`fonbw.gap.hidden.judge_again`)) and, when a
+    limit is named, ``d.current``'s validation
     predictions and MSE (cross-fitted, every record) and a waterfall step.
+
+    Returns
+    -------
+    (dict, dict) or None
+        When a limit is named, the configuration it was cross-fitted on and
+        the stage's context (for :func:`fonbw.gap.hidden.judge_again`).
     """
     d.beyond = None
     cur, sigma2 = d.current, d.sigma2
@@ -381,9 +389,9 @@ def beyond_training(d):
     lib = {e.name: e for e in d.lib}
     blocks = {}
     if "clip" in lib and "clip" not in d.accepted and top is not None:
-        blocks["clip"] = (_rail, u > ctx["u_train"])
+        blocks["clip"] = (BLOCKS["clip"], u > ctx["u_train"])
     if "saturation" in lib and "saturation" not in d.accepted and z.max() > ctx["y_train"]:
-        blocks["saturation"] = (_stroke_limit, z > ctx["y_train"])
+        blocks["saturation"] = (BLOCKS["saturation"], z > ctx["y_train"])
     blocks, shifted, records, judged = _layout(d, ctx, blocks)
     if not blocks:
         return
@@ -410,12 +418,13 @@ def beyond_training(d):
         return
     t, ex = tried[name], d.excess0
     d.beyond.update(gap_closed=t["gap_closed"], gap_closed_all=(cur["mse"] - t["mse"]) / ex if ex > 0 else None,
-                    params=_mean_params(t["folds"]))
+                    params=mean_params(t["folds"]))
     if judged is not None:
         d.beyond["within_training_rates"]["gap_closed"] = t["gap_closed_within"]
     ends = np.cumsum([len(r.y) for r in d.val_s])[:-1]
     d.current = {**cur, "pred": np.split(t["pred"], ends), "mse": t["mse"]}
     d.steps.append({"label": f"+{name} beyond training", "rms_validate": math.sqrt(t["mse"])})
+    return cur, ctx
 
 
 def _summary(d, tried, name, overruled, shifted, records, judged):
@@ -426,7 +435,7 @@ def _summary(d, tried, name, overruled, shifted, records, judged):
         return x if x is not None and math.isfinite(x) else None
     within = None if judged is None else {"records": [str(d.val_s[j].path) for j in records], "gap_closed": None}
     return {"effect": name, "gap_closed": None, "gap_closed_all": None, "params": None, "fold_s": FOLD_S,
-            "folds_shifted": shifted, "overruled": overruled, "within_training_rates": within,
+            "folds_shifted": shifted, "overruled": overruled, "within_training_rates": within, "then": None,
             "tried": {k: {"gap_closed": finite(t["gap_closed"]), "folds": t["folds"], "refused": t["refused"],
                           **({} if judged is None else {"gap_closed_within": finite(t["gap_closed_within"])})}
                       for k, t in tried.items()}}
@@ -517,6 +526,29 @@ def _score(d, ctx, blocks, lib, judged, before, left):
     return tried
 
 
+def limit_on(d, cfg, name, ctx):
+    """The limit `name` cross-fitted on top of the configuration `cfg` of
+    diagnosis `d` as :func:`beyond_training` does on its final one, in that
+    stage's context `ctx`: its entry (``pred``, ``mse``, ``folds``,
+    ``gap_closed`` ...) when :func:`pick` names it there, else None."""
+    z = np.concatenate(cfg["pred"])
+    c = {**ctx, "z": z}
+    y, judged = c["y"], c.get("judged")
+    before = cfg["mse"] if judged is None else _sse(y[judged], z[judged]) / np.count_nonzero(judged)
+    saved = d.current
+    d.current = cfg  # a rail's predictions run the configuration's own model
+    try:
+        t = _score(d, c, {name: (BLOCKS[name], None)}, {e.name: e for e in d.lib}, judged, before,
+                   cfg["mse"] - d.sigma2)[name]
+    finally:
+        d.current = saved
+    share = "gap_closed" if judged is None else "gap_closed_within"
+    ok = pick({name: {"gap_closed": t[share] if math.isfinite(t["mse"]) else -math.inf,
+                      "mse": t["mse" if judged is None else "mse_within"], "refused": t["refused"]}},
+              before, d.sigma2)
+    return t if ok == name else None
+
+
 def pick(tried, mse, sigma2, overruled_by=None):
     """The limit named among the cross-fitted `tried` blocks (name → ``gap_closed``,
     ``mse``, ``refused``) on top of a model of validation MSE `mse` [µm²], or None:
@@ -543,6 +575,10 @@ def pick(tried, mse, sigma2, overruled_by=None):
     return max(ok, key=lambda k: tried[k]["gap_closed"]) if ok else None
 
 
-def _mean_params(chosen):
+def mean_params(chosen):
     """One set of parameters from the two folds' choices: their means."""
     return {k: float(np.mean([c[k] for c in chosen])) for k in chosen[0]}
+
+
+#: The cross-fit of each limit block (``f(block, d, ctx) -> ((pred, params), refusal)``).
+BLOCKS = {"clip": _rail, "saturation": _stroke_limit}

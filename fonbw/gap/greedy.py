@@ -317,7 +317,7 @@ class GreedySteps:
         step's entry of ``later_steps``. No effect is named by it."""
         cur, j = self.current, pole["j"]
         self.lib[cur["idx"][j]] = pole["eff"][j]
-        self.current = _configuration(pole["fit"], pole["eff"], cur["idx"], pole["mse"], pole["pv"])
+        self.current = configuration(pole["fit"], pole["eff"], cur["idx"], pole["mse"], pole["pv"])
         self.steps.append({"label": "+amplifier's own pole", "rms_validate": math.sqrt(pole["mse"])})
         self.later_steps[-1]["own_pole"] = pole["summary"]
         self.say(f"the amplifier takes a pole of its own at {pole['params']['f_pole']:.4g} Hz: gap closed "
@@ -442,8 +442,9 @@ class GreedySteps:
         # a second attribution (on the reference nominal, fonbw.gap.form) asks
         # for the amplifier's own pole afresh, on its own nominal
         self.lib[:] = [(e.one_pole or e) if e.name == "amplifier" else e for e in self.lib]
-        self.current = _configuration(a["base"], [], [], a["mse"], a["pred"])
+        self.current = configuration(a["base"], [], [], a["mse"], a["pred"])
         self.candidates, self.accepted, self.later_steps, self.within_rates = [], [], [], {}
+        self.open_step = None
         self.edges = StepEdges(self.rs.raw["train"], self.dt, math.sqrt(self.sigma2))
         self.steps = [{"label": "nominal", "rms_validate": math.sqrt(self.mse0)}]
         if a["core"] == "reference":
@@ -475,6 +476,9 @@ class GreedySteps:
                 continue
             best = selection.pick_best(results, self.tie_margin)
             if best is None:
+                # what a limit named beyond the training range may judge again
+                # (fonbw.gap.hidden)
+                self.open_step = {"step": step, "on": self.current, "results": results}
                 break
             # a block searched again within the edges' range stays there
             lib[best["i"]] = best["eff"][-1]
@@ -489,7 +493,7 @@ class GreedySteps:
                 self.within_rates[name] = {"records": [str(self.val_s[j].path) for j in w["records"]],
                                            "gap_closed": w["gap_closed"],
                                            "gap_closed_all": best["checks"]["gap_closed_step"]}
-            self.current = _configuration(best["fit"], best["eff"], self.current["idx"] + [best["i"]], best["mse"],
+            self.current = configuration(best["fit"], best["eff"], self.current["idx"] + [best["i"]], best["mse"],
                                           best["pv"])
             self.steps.append({"label": "+" + name, "rms_validate": math.sqrt(best["mse"])})
             pool = selection.retry_pool(pool, best["i"], results, first_step=step == 0)
@@ -502,7 +506,7 @@ def _n_params(block, core):
     return len(block.names) + len(block.lin_names_on(core))
 
 
-def _configuration(fit, eff, idx, mse, pred):
+def configuration(fit, eff, idx, mse, pred):
     """A configuration the greedy steps build on: the joint `fit` of the
     effect blocks `eff` (library indices `idx`), its validation MSE [µm²] and
     predictions, and its training MSE."""

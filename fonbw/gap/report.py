@@ -163,6 +163,13 @@ def _step_outcome(st):
     return "+" + st["accepted"] if st["accepted"] else "nothing added"
 
 
+def _on_top_of(st):
+    """What a later step's candidates were judged on top of, in words."""
+    on = ", ".join(st["on_top_of"])
+    # the first step's refits, judged again with that limit cross-fitted on them
+    return on + " named beyond the training range" if st.get("beyond_training") else on
+
+
 def write_html(result, path):
     """Write a self-contained HTML report of a :func:`fonbw.gap.diagnose` result."""
     figs = _figures(result)
@@ -171,7 +178,7 @@ def write_html(result, path):
     esc = html.escape
     rows = [_candidate_row(c) for c in result["candidates"]]
     later = "".join(
-        f"<h3>On top of {esc(', '.join(st['on_top_of']))} (val. RMS {st['rms_validate']:.4g} µm): "
+        f"<h3>On top of {esc(_on_top_of(st))} (val. RMS {st['rms_validate']:.4g} µm): "
         f"{esc(_step_outcome(st))}</h3>"
         f"<table>{_CANDIDATE_HEAD}{''.join(_candidate_row(c) for c in st['candidates'])}</table>"
         for st in v.get("later_steps", []))

@@ -149,7 +149,10 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
         whose lags an accepted amplifier's own pole explains also has
         ``own_pole`` (its ``params``, ``rms_train`` [µm] and ``gap_closed``:
         :meth:`fonbw.gap.greedy.GreedySteps._own_pole`), and the waterfall a
-        step "+amplifier's own pole".
+        step "+amplifier's own pole"; the first step's candidates judged
+        again on top of a limit named beyond the training range
+        (:mod:`fonbw.gap.hidden`) are a step with ``beyond_training`` (the
+        limit's name).
     tones : list of dict, optional
         Narrow lines in what the final model leaves that its own output lacks
         (:func:`fonbw.gap.localize.tones`: ``hz``, ``share``).
@@ -167,7 +170,9 @@ def verdict(accepted, *, mse0, mse, excess0, at_floor, steps, coverage, params,
     beyond : dict, optional
         The limit cross-fitted on the validation records beyond the training
         range (:func:`fonbw.gap.beyond.beyond_training`), reported as it is;
-        its ``effect``, when named, is the last of `accepted`.
+        its ``effect``, when named, follows the greedy steps' effects in
+        `accepted`, and its ``then``, an effect it hid at the first greedy
+        step (:mod:`fonbw.gap.hidden`), comes last.
 
     Returns
     -------
