@@ -56,7 +56,8 @@ def rows(paths):
 
 def steps(r):
     """(step number, candidates, effect accepted or None) of each greedy step of row `r`."""
-    later = r.get("later_steps") or []
+    # a step judged on top of a limit named beyond the training range is no greedy step
+    later = [s for s in r.get("later_steps") or [] if not s.get("beyond_training")]
     first = later[0]["on_top_of"][-1] if later else (r["named"][0] if r["named"] else None)
     return [(1, r["candidates"], first)] + [(i + 2, s["candidates"], s.get("accepted"))
                                             for i, s in enumerate(later)]

@@ -320,7 +320,8 @@ def _later_steps_text(steps):
             for st in steps for c in st["candidates"]]
     if not rows:
         return ""
-    return ("\n\nLater steps, each candidate refit on top of the effects named before it (gap closed: "
+    return ("\n\nLater steps, each candidate refit on top of the effects named before it, or its first-step "
+            "refit judged with a limit named beyond training on top (gap closed: "
             "the share it adds of the gap the nominal they are attributed on leaves, as above):\n\n"
             + md_table(["on top of", "effect", "gap closed", "named"], rows))
 

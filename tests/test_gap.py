@@ -1244,7 +1244,7 @@ def test_a_candidate_that_diverges_on_validation_is_listed_without_a_gap():
                 "checks": {"gap_closed_step": None, "passed": False}},
                {"i": 1, "fit": {}, "mse": 0.04, "eff": [lib[1]],
                 "checks": {"gap_closed_step": 0.37, "passed": True}}]
-    entries = Diagnosis._entries(me, results)
+    entries = Diagnosis.entries(me, results)
     creep, clip = entries
     assert clip["effect"] == "clip" and clip["gap_closed"] is None and clip["rms_validate"] is None
     assert creep["gap_closed"] == 0.37 and creep["rms_validate"] == pytest.approx(0.2)

@@ -407,8 +407,8 @@ def test_an_effect_a_limit_beyond_the_training_range_hid_is_named_after_it(ampli
     assert amp["checks"]["loro"]["pooled_ratio"] < 1.0
     # the lags that share its trace are refused at the step edges there
     for name in ("delay", "dynamics"):
-        c = next(c for c in st["candidates"] if c["effect"] == name)
-        assert not c["accepted"] and "step edges" in c["checks"]["failed"]
+        c = next((c for c in st["candidates"] if c["effect"] == name), None)
+        assert c is not None and not c["accepted"] and "step edges" in c["checks"]["failed"]
     # the waterfall: the limit, then the amplifier, each lowering the validation RMS
     labels = [w["step"] for w in v["waterfall"]]
     assert labels[-3:] == ["+saturation beyond training", "+amplifier", "noise floor"]
@@ -429,17 +429,26 @@ def test_an_effect_a_limit_beyond_the_training_range_hid_is_named_after_it(ampli
     assert "On top of saturation named beyond the training range (val. RMS" in (tmp_path / "gap.html").read_text()
 
 
-@pytest.mark.parametrize("accepted, same", [(["delay"], True), ([], False)])
-def test_only_a_first_step_that_named_nothing_on_the_limits_model_is_judged_again(accepted, same):
-    # a step after accepted effects, or one tried on another configuration
-    # (a form named with no effect after it), is left as it was: no limit is
-    # cross-fitted on any of its candidates and no later step is recorded
-    from fonbw.gap.hidden import judge_again
+@pytest.mark.parametrize("accepted, same, most", [(["delay"], True, 3), ([], False, 3), ([], True, 1)])
+def test_only_a_first_step_that_named_nothing_on_the_limits_model_is_judged_again(accepted, same, most,
+                                                                                   monkeypatch):
+    # a step after accepted effects, one tried on another configuration (a
+    # form named with no effect after it), or no room for a second effect:
+    # no limit is cross-fitted on any candidate and no later step is recorded
+    from fonbw.gap import hidden
+    calls = []
+    monkeypatch.setattr(hidden.by, "limit_on", lambda *a, **k: calls.append(a))
     before = {"idx": [], "mse": 1.0, "pred": [np.zeros(4)]}
-    hid = {"i": 0, "checks": {"failed": "closes too little"}, "mse": 0.9}
-    d = SimpleNamespace(open_step={"step": len(accepted), "on": before if same else dict(before),
-                                   "results": [hid]},
-                        beyond={"effect": "clip", "then": None}, accepted=accepted, max_effects=3,
-                        lib=[fx.Amplifier(2e-4, 120.0)], later_steps=[], steps=[])
-    judge_again(d, before, {})
-    assert d.beyond["then"] is None and d.later_steps == [] and d.steps == []
+    hid = {"i": 0, "checks": {"failed": "closes too little", "refused": None}, "mse": 0.9,
+           "fit": {"th": [], "rms": 1.0}, "eff": [], "pv": [np.zeros(4)]}
+    d = SimpleNamespace(open_step={"on": before if same else dict(before), "results": [hid]},
+                        beyond={"effect": "clip", "then": None, "overruled": None}, accepted=accepted,
+                        max_effects=most, lib=[fx.Amplifier(2e-4, 120.0)], later_steps=[], steps=[],
+                        current=before, val_s=[Record.from_arrays(u=np.zeros(4), y=np.zeros(4), dt=2e-4)],
+                        say=lambda *a: None)
+    hidden.judge_again(d, before, {})
+    assert calls == [] and d.beyond["then"] is None and d.later_steps == [] and d.steps == []
+    # the same stage with the first step open on the limit's model does cross-fit it
+    d.open_step, d.accepted, d.max_effects = {"on": before, "results": [hid]}, [], 3
+    hidden.judge_again(d, before, {})
+    assert len(calls) == 1 and d.later_steps == []

@@ -452,13 +452,17 @@ class Diagnosis(NominalStage, GreedySteps):
             fm.judge_on_effects(self)
             named = beyond_training(self)
             if named is not None:
+                t0 = time.perf_counter()
                 judge_again(self, *named)
+                self.timing["hidden_s"] = time.perf_counter() - t0
         self.pool = None
         return self.result()
 
     def __getstate__(self):
         # a worker gets the diagnosis without the pool (pipes, processes)
         # nor the refits of a step that named nothing, which no worker reads
+        # (a copy made this way, deepcopy included, judges nothing again:
+        # fonbw.gap.hidden)
         return {**self.__dict__, "pool": None, "open_step": None}
 
 

@@ -359,7 +359,8 @@ def beyond_training(d):
     share of what the model left on them, or None) and ``tried`` (each
     block's share, ``gap_closed_within`` when so judged, fold parameters
     and refusal), ``then`` (None; an effect the limit hid at the first
-    greedy step, set by :func:`fonbw.gap.hidden.judge_again`)) and, when a
+    greedy step, set by :func:`fonbw.gap.hidden.judge_again`, which then
+    also sets ``params`` to the limit's on the final model)) and, when a
     limit is named, ``d.current``'s validation
     predictions and MSE (cross-fitted, every record) and a waterfall step.
 
@@ -526,11 +527,12 @@ def _score(d, ctx, blocks, lib, judged, before, left):
     return tried
 
 
-def limit_on(d, cfg, name, ctx):
+def limit_on(d, cfg, name, ctx, lifted=False):
     """The limit `name` cross-fitted on top of the configuration `cfg` of
     diagnosis `d` as :func:`beyond_training` does on its final one, in that
     stage's context `ctx`: its entry (``pred``, ``mse``, ``folds``,
-    ``gap_closed`` ...) when :func:`pick` names it there, else None."""
+    ``gap_closed`` ...) when :func:`pick` names it there (without its
+    refusal when `lifted`), else None."""
     z = np.concatenate(cfg["pred"])
     c = {**ctx, "z": z}
     y, judged = c["y"], c.get("judged")
@@ -544,7 +546,8 @@ def limit_on(d, cfg, name, ctx):
         d.current = saved
     share = "gap_closed" if judged is None else "gap_closed_within"
     ok = pick({name: {"gap_closed": t[share] if math.isfinite(t["mse"]) else -math.inf,
-                      "mse": t["mse" if judged is None else "mse_within"], "refused": t["refused"]}},
+                      "mse": t["mse" if judged is None else "mse_within"],
+                      "refused": None if lifted else t["refused"]}},
               before, d.sigma2)
     return t if ok == name else None
 

@@ -20,7 +20,7 @@ from . import selection
 from .edges import StepEdges
 from .result import jsonable
 
-__all__ = ["GreedySteps"]
+__all__ = ["GreedySteps", "configuration"]
 
 
 class GreedySteps:
@@ -403,7 +403,7 @@ class GreedySteps:
         out["searched_within_s"] = list(block.bounds[0])
         return fit, pv, mse, out, block
 
-    def _entries(self, results):
+    def entries(self, results):
         """One JSON-able entry per candidate of a greedy step (``gap_closed``:
         what the step's refit closes, as a share of the excess gap of the
         nominal the effects are attributed on), largest gap_closed first."""
@@ -427,11 +427,11 @@ class GreedySteps:
         # effect alone); a later step's go with what they were refit on, so
         # that a report can say why a second effect was not named
         if step == 0:
-            self.candidates.extend(self._entries(results))
+            self.candidates.extend(self.entries(results))
         else:
             self.later_steps.append({"on_top_of": list(self.accepted),
                                      "rms_validate": math.sqrt(self.current["mse"]),
-                                     "accepted": None, "candidates": self._entries(results)})
+                                     "accepted": None, "candidates": self.entries(results)})
 
     def begin_attribution(self):
         """The state the greedy steps start from, in the attribution context
@@ -478,7 +478,7 @@ class GreedySteps:
             if best is None:
                 # what a limit named beyond the training range may judge again
                 # (fonbw.gap.hidden)
-                self.open_step = {"step": step, "on": self.current, "results": results}
+                self.open_step = {"on": self.current, "results": results}
                 break
             # a block searched again within the edges' range stays there
             lib[best["i"]] = best["eff"][-1]

@@ -36,7 +36,9 @@ class DiagnosisResult(Mapping):
         ``effects`` (accepted, strongest first: in the order of acceptance), ``gap_closed``,
         ``unexplained``, ``at_noise_floor``, ``steps`` (the waterfall),
         ``coverage``, ``params``, ``later_steps`` (every candidate of each
-        greedy step after the first, with its checks), ``within_training_rates``
+        greedy step after the first, with its checks, and of the first step
+        judged again on top of a limit named beyond the training range),
+        ``within_training_rates``
         (accepted effects judged on the validation records within the
         training records' input rates), ``beyond_training`` (a rail or a
         stroke limit cross-fitted where only the validation records go past
