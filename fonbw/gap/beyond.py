@@ -372,7 +372,6 @@ def beyond_training(d):
     """
     d.beyond = None
     cur, sigma2 = d.current, d.sigma2
-    left = cur["mse"] - sigma2
     # credited only for what the model leaves above the floor, as a greedy step
     if d.at_floor or checks.at_floor(cur["mse"], sigma2, d.floor_tol) or len(d.accepted) >= d.max_effects:
         return
@@ -396,15 +395,8 @@ def beyond_training(d):
     blocks, shifted, records, judged = _layout(d, ctx, blocks)
     if not blocks:
         return
-    before = cur["mse"] if judged is None else _sse(y[judged], z[judged]) / np.count_nonzero(judged)
-    tried = _score(d, ctx, blocks, lib, judged, before, left)
+    tried, name = _named(d, ctx, blocks, judged, cur["mse"], {k: lib[k].overruled_by for k in blocks})
     share = "gap_closed" if judged is None else "gap_closed_within"
-    # judged within the rates, a limit whose prediction is not finite on
-    # every record is no fit either
-    name = pick({k: {"gap_closed": t[share] if math.isfinite(t["mse"]) else -math.inf,
-                     "mse": t["mse" if judged is None else "mse_within"], "refused": t["refused"]}
-                 for k, t in tried.items()},
-                before, sigma2, {k: lib[k].overruled_by for k in tried})
     # a refused limit named: its rival passed and closed less (see pick)
     overruled = tried[name]["refused"] if name is not None else None
 
@@ -533,23 +525,32 @@ def limit_on(d, cfg, name, ctx, lifted=False):
     stage's context `ctx`: its entry (``pred``, ``mse``, ``folds``,
     ``gap_closed`` ...) when :func:`pick` names it there (without its
     refusal when `lifted`), else None."""
-    z = np.concatenate(cfg["pred"])
-    c = {**ctx, "z": z}
-    y, judged = c["y"], c.get("judged")
-    before = cfg["mse"] if judged is None else _sse(y[judged], z[judged]) / np.count_nonzero(judged)
+    c = {**ctx, "z": np.concatenate(cfg["pred"])}
     saved = d.current
     d.current = cfg  # a rail's predictions run the configuration's own model
     try:
-        t = _score(d, c, {name: (BLOCKS[name], None)}, {e.name: e for e in d.lib}, judged, before,
-                   cfg["mse"] - d.sigma2)[name]
+        tried, named = _named(d, c, {name: (BLOCKS[name], None)}, c.get("judged"), cfg["mse"], lifted=lifted)
     finally:
         d.current = saved
+    return tried[name] if named == name else None
+
+
+def _named(d, ctx, blocks, judged, mse, overruled_by=None, lifted=False):
+    """The `blocks` cross-fitted on top of ``d.current`` (validation MSE `mse`
+    [µm²]) in context `ctx` (:func:`_score`), and the one :func:`pick` names
+    of them (None), each judged without its refusal when `lifted`: (tried, name).
+    Where `judged` (a mask) is set, the shares and MSEs picked on are those
+    of the judged samples."""
+    y, z = ctx["y"], ctx["z"]
+    before = mse if judged is None else _sse(y[judged], z[judged]) / np.count_nonzero(judged)
+    tried = _score(d, ctx, blocks, {e.name: e for e in d.lib}, judged, before, mse - d.sigma2)
     share = "gap_closed" if judged is None else "gap_closed_within"
-    ok = pick({name: {"gap_closed": t[share] if math.isfinite(t["mse"]) else -math.inf,
-                      "mse": t["mse" if judged is None else "mse_within"],
-                      "refused": None if lifted else t["refused"]}},
-              before, d.sigma2)
-    return t if ok == name else None
+    # judged within the rates, a limit whose prediction is not finite on
+    # every record is no fit either
+    return tried, pick({k: {"gap_closed": t[share] if math.isfinite(t["mse"]) else -math.inf,
+                            "mse": t["mse" if judged is None else "mse_within"],
+                            "refused": None if lifted else t["refused"]} for k, t in tried.items()},
+                       before, d.sigma2, overruled_by)
 
 
 def pick(tried, mse, sigma2, overruled_by=None):

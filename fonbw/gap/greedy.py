@@ -480,25 +480,32 @@ class GreedySteps:
                 # (fonbw.gap.hidden)
                 self.open_step = {"on": self.current, "results": results}
                 break
-            # a block searched again within the edges' range stays there
-            lib[best["i"]] = best["eff"][-1]
-            name = lib[best["i"]].name
+            name = self.take(best, self.current["idx"])
             if step > 0:
                 self.later_steps[-1]["accepted"] = name
                 for c in self.later_steps[-1]["candidates"]:
                     c["accepted"] = c["effect"] == name
             self.accepted.append(name)
-            w = best["checks"].get("within_training_rates")
-            if w is not None:
-                self.within_rates[name] = {"records": [str(self.val_s[j].path) for j in w["records"]],
-                                           "gap_closed": w["gap_closed"],
-                                           "gap_closed_all": best["checks"]["gap_closed_step"]}
-            self.current = configuration(best["fit"], best["eff"], self.current["idx"] + [best["i"]], best["mse"],
-                                          best["pv"])
-            self.steps.append({"label": "+" + name, "rms_validate": math.sqrt(best["mse"])})
             pool = selection.retry_pool(pool, best["i"], results, first_step=step == 0)
             step += 1
         self.timing["attribute_s"] = time.perf_counter() - t0
+
+    def take(self, best, idx):
+        """Build on candidate `best` (an element of a step's results) on top of
+        the configuration of library indices `idx`: its block in the library
+        (a block searched again within the edges' range stays there), the
+        records it was judged on when within the training rates, the current
+        configuration and a waterfall step. Returns the effect's name."""
+        self.lib[best["i"]] = best["eff"][-1]
+        name = self.lib[best["i"]].name
+        w = best["checks"].get("within_training_rates")
+        if w is not None:
+            self.within_rates[name] = {"records": [str(self.val_s[j].path) for j in w["records"]],
+                                       "gap_closed": w["gap_closed"],
+                                       "gap_closed_all": best["checks"]["gap_closed_step"]}
+        self.current = configuration(best["fit"], best["eff"], idx + [best["i"]], best["mse"], best["pv"])
+        self.steps.append({"label": "+" + name, "rms_validate": math.sqrt(best["mse"])})
+        return name
 
 
 def _n_params(block, core):

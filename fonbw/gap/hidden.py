@@ -100,14 +100,6 @@ def judge_again(d, before, ctx):
         c["accepted"] = c["effect"] == name
     if best is None:
         return
-    # a block searched again within the step edges' range stays there, as
-    # when a greedy step accepts it
-    d.lib[best["i"]] = best["eff"][-1]
-    d.beyond["then"] = name
-    w = best["checks"].get("within_training_rates")
-    if w is not None:
-        d.within_rates[name] = {"records": [str(d.val_s[j].path) for j in w["records"]],
-                                "gap_closed": w["gap_closed"], "gap_closed_all": best["checks"]["gap_closed_step"]}
+    # built on as a greedy step builds on what it accepts
+    d.beyond["then"] = d.take(best, before["idx"])
     d.beyond["params"] = by.mean_params(best["limit"]["folds"])
-    d.current = configuration(best["fit"], best["eff"], before["idx"] + [best["i"]], best["mse"], best["pv"])
-    d.steps.append({"label": "+" + name, "rms_validate": math.sqrt(best["mse"])})
