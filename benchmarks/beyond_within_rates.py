@@ -5,7 +5,7 @@ family and mid-drive share of :mod:`blind_gap`) up to the stage that
 cross-fits a rail and a stroke limit beyond the training range
 (:func:`fonbw.gap.beyond.beyond_training`), then runs that stage twice on
 the same state: with every record judged (as the stage was first written:
-``_judged_records`` held to none) and as the library runs it, on the
+``within_rates=False``) and as the library runs it, on the
 reference nominal within the training rates. One line per scenario: the
 injected effects, what the greedy steps accepted, and for each way the limit
 named and each block's share of what was left (of the whole, and within the
@@ -65,13 +65,7 @@ def stage(d, within):
     """``d.beyond`` of the stage run on a copy of `d`, judged within the rates or on every record."""
     d = copy.deepcopy(d)
     d.say = lambda *a: None
-    judged = beyond._judged_records
-    if not within:
-        beyond._judged_records = lambda *a: (None, None)
-    try:
-        beyond.beyond_training(d)
-    finally:
-        beyond._judged_records = judged
+    beyond.beyond_training(d, within_rates=within)
     return d.beyond or {}
 
 

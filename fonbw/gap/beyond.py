@@ -252,11 +252,12 @@ def _sse(y, p):
     return v if math.isfinite(v) else math.inf
 
 
-def rail_prediction(clip, d, level, knee):
-    """The scored validation samples [µm], concatenated, predicted by diagnosis
-    `d`'s final configuration with the rail `clip` at `level` [V] and `knee` [V]
-    after it, everything else held."""
-    cur, att = d.current, d.att
+def rail_prediction(clip, d, level, knee, cfg=None):
+    """The scored validation samples [µm], concatenated, predicted by the
+    configuration `cfg` of diagnosis `d` (default: its final one,
+    ``d.current``) with the rail `clip` at `level` [V] and `knee` [V] after
+    it, everything else held."""
+    cur, att = d.current if cfg is None else cfg, d.att
     fit = {**cur["fit"], "th": list(cur["fit"]["th"]) + [np.array([level, knee])]}
     return np.concatenate(d.cut_va(att["fitter"].predict(d.val, fit, list(cur["eff"]) + [clip], att["yref_va"])))
 
@@ -268,7 +269,7 @@ def _rail(clip, d, ctx):
     drive's top or where that rail holds the command the output bears out
     less than :data:`BORNE_OUT` of the shape it gives the top."""
     levels = np.linspace(ctx["u_train"] - 0.03 * clip.U, float(ctx["u"].max()), 10)
-    preds = {(float(level), float(width)): rail_prediction(clip, d, level, width)
+    preds = {(float(level), float(width)): rail_prediction(clip, d, level, width, ctx.get("cfg"))
              for level in levels for width in (k * clip.U for k in clip.knee_shares)}
     y = ctx["y"]
 
@@ -338,12 +339,14 @@ def _stroke_limit(sat, d, ctx):
     return out, refused
 
 
-def beyond_training(d):
+def beyond_training(d, within_rates=True):
     """Cross-fit a rail and a stroke limit the training records did not reach on
     top of diagnosis `d`'s final configuration; name the better one when it
     closes :data:`SHARE` of what is left and :data:`~fonbw.gap.checks.LATE_DROP`
     noise variances of MSE (on the reference nominal, of what is left on
-    the records :func:`_judged_records` picks, when it picks some).
+    the records :func:`_judged_records` picks, when it picks some and
+    `within_rates` is true; false judges every record, as the stage was
+    first written).
 
     Sets ``d.beyond`` (None when the model is at the noise floor or holds
     the most effects already, when no validation record goes past the
@@ -392,7 +395,7 @@ def beyond_training(d):
         blocks["clip"] = (BLOCKS["clip"], u > ctx["u_train"])
     if "saturation" in lib and "saturation" not in d.accepted and z.max() > ctx["y_train"]:
         blocks["saturation"] = (BLOCKS["saturation"], z > ctx["y_train"])
-    blocks, shifted, records, judged = _layout(d, ctx, blocks)
+    blocks, shifted, records, judged = _layout(d, ctx, blocks, within_rates)
     if not blocks:
         return
     tried, name = _named(d, ctx, blocks, judged, cur["mse"], {k: lib[k].overruled_by for k in blocks})
@@ -439,13 +442,13 @@ def _covered(m, fold):
     return all(np.count_nonzero(m & (fold == f)) >= MIN_SAMPLES for f in (0, 1))
 
 
-def _layout(d, ctx, blocks):
+def _layout(d, ctx, blocks, within_rates=True):
     """The folds and the samples the limits are judged on; sets ``ctx["fold"]``
     and ``ctx["judged"]``.
 
     `blocks` maps a name to (cross-fit function, its samples past the
-    training range). On the records :func:`_judged_records` picks, when
-    every block's samples there cover both folds (shifted,
+    training range). On the records :func:`_judged_records` picks (none
+    unless `within_rates`), when every block's samples there cover both folds (shifted,
     :func:`shifted_folds`, where they do not); else on every record, as the
     stage was first written: the folds shifted where a block's samples do
     not cover them, and a block whose samples still do not left out.
@@ -456,7 +459,7 @@ def _layout(d, ctx, blocks):
         The blocks tried, whether the folds were shifted, the judged
         records' indices and their samples (None: every record).
     """
-    records, mask = _judged_records(d, ctx)
+    records, mask = _judged_records(d, ctx) if within_rates else (None, None)
     base = ctx["fold"]
     for sel in ((mask,) if mask is not None else ()) + (None,):
         past = {k: m if sel is None else m & sel for k, (_, m) in blocks.items()}
@@ -498,12 +501,12 @@ def _judged_records(d, ctx):
 
 
 def _score(d, ctx, blocks, lib, judged, before, left):
-    """Each block's cross-fit on top of `d`'s final configuration: its
-    prediction of every scored sample and MSE, its share of what the model
-    leaves (`left` above the floor), its fold parameters and refusal, and
-    where `judged` (a mask) is set the MSE and share on those samples, of a
-    model MSE `before` there."""
-    y, cur = ctx["y"], d.current
+    """Each block's cross-fit on top of the configuration ``ctx["cfg"]`` of
+    `d` (default: its final one): its prediction of every scored sample and
+    MSE, its share of what the model leaves (`left` above the floor), its
+    fold parameters and refusal, and where `judged` (a mask) is set the MSE
+    and share on those samples, of a model MSE `before` there."""
+    y, cur = ctx["y"], d.current if ctx.get("cfg") is None else ctx["cfg"]
     tried = {}
     for name, (fn, _) in blocks.items():
         (pred, chosen), refused = fn(lib[name], d, ctx)
@@ -525,19 +528,16 @@ def limit_on(d, cfg, name, ctx, lifted=False):
     stage's context `ctx`: its entry (``pred``, ``mse``, ``folds``,
     ``gap_closed`` ...) when :func:`pick` names it there (without its
     refusal when `lifted`), else None."""
-    c = {**ctx, "z": np.concatenate(cfg["pred"])}
-    saved = d.current
-    d.current = cfg  # a rail's predictions run the configuration's own model
-    try:
-        tried, named = _named(d, c, {name: (BLOCKS[name], None)}, c.get("judged"), cfg["mse"], lifted=lifted)
-    finally:
-        d.current = saved
+    # a rail's predictions run the configuration's own model
+    c = {**ctx, "z": np.concatenate(cfg["pred"]), "cfg": cfg}
+    tried, named = _named(d, c, {name: (BLOCKS[name], None)}, c.get("judged"), cfg["mse"], lifted=lifted)
     return tried[name] if named == name else None
 
 
 def _named(d, ctx, blocks, judged, mse, overruled_by=None, lifted=False):
-    """The `blocks` cross-fitted on top of ``d.current`` (validation MSE `mse`
-    [µm²]) in context `ctx` (:func:`_score`), and the one :func:`pick` names
+    """The `blocks` cross-fitted on top of ``ctx["cfg"]`` (default
+    ``d.current``; validation MSE `mse` [µm²]) in context `ctx`
+    (:func:`_score`), and the one :func:`pick` names
     of them (None), each judged without its refusal when `lifted`: (tried, name).
     Where `judged` (a mask) is set, the shares and MSEs picked on are those
     of the judged samples."""
