@@ -58,7 +58,8 @@ from fonbw.de import _Space, jde_minimize
 from fonbw.fitcheck import parameter_check
 from fonbw.gnpolish import gauss_newton_polish
 from fonbw.identifiable import SIGMA_MAX
-from fonbw.objective import Projected as _Projected, as_records as _as_records, rms_cost, simulate_record
+from fonbw.objective import (DivergedError, Projected as _Projected, as_records as _as_records, rms_cost,
+                             simulate_record)
 from fonbw.searchspace import KINDS, SearchSpace, search_space, search_vector
 
 __all__ = ["KINDS", "IdentifyResult", "SearchSpace", "search_space", "search_vector", "identify",
@@ -291,8 +292,8 @@ def _identify_result(proj, res, wall, records, check=True):
         # kernels): there is no best-so-far model, so the interrupt goes on.
         raise KeyboardInterrupt("interrupted before the search had a best candidate")
     if not np.isfinite(res.fun):
-        raise RuntimeError(f"identify({kind!r}): every candidate diverged "
-                           f"({res.nfev} evaluations); check the data and bounds")
+        raise DivergedError(f"identify({kind!r}): every candidate diverged "
+                            f"({res.nfev} evaluations); check the data and bounds")
     x = space.project(res.x)[0] if space.project is not None else res.x
     _, G, c = proj.solve(x[None, :])
     params = space.final_params(x, c[0], float(G[0]))

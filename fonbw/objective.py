@@ -14,7 +14,14 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["stage_rest", "rms_cost", "Projected", "lead_in", "as_records", "simulate_record", "score"]
+__all__ = ["stage_rest", "rms_cost", "Projected", "lead_in", "as_records", "simulate_record", "score",
+           "DivergedError"]
+
+
+class DivergedError(RuntimeError):
+    """Every candidate model diverged on the records: the data or the bounds,
+    not the code, are at fault (the command line reports it as bad input)."""
+
 
 #: Smallest share (in RMS) of a candidate's basis signal that is not a linear
 #: combination of the fixed regressors (powers of u, offsets). Below it the
@@ -107,11 +114,17 @@ def as_records(records):
         if not (dt > 0.0 and np.isfinite(dt)):
             raise ValueError(f"{name}: sampling period dt must be > 0, got {dt}")
         out.append((u, y, dt))
+    names = ", ".join(str(getattr(r, "path", None) or f"record {i}") for i, r in enumerate(records))
     U = max(float(np.max(np.abs(u))) for u, _, _ in out)
     if U == 0.0:
-        raise ValueError("records: the input u is identically zero; nothing to identify")
+        raise ValueError(f"{names}: the input u is identically zero; nothing to identify")
+    if max(float(np.ptp(u)) for u, _, _ in out) == 0.0:
+        # every candidate then diverges or ties: a held voltage traces no loop
+        held = ", ".join(f"{u[0]:.6g}" for u, _, _ in out)
+        raise ValueError(f"{names}: the input u is constant ({held} V) in every record; a drive that never "
+                         "moves shows no hysteresis, nothing to identify")
     if max(float(np.ptp(y)) for _, y, _ in out) == 0.0:
-        raise ValueError("records: the output y is constant; nothing to identify")
+        raise ValueError(f"{names}: the output y is constant; nothing to identify")
     return out
 
 

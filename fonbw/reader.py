@@ -76,6 +76,12 @@ def parse_columns(spec) -> dict:
             if int(col) < 1:
                 raise ValueError(f"--columns: {k}={col}: positions are 1-based")
             col = int(col)
+        if k in out:
+            raise ValueError(f"--columns: {k} is given twice")
+        # one column read as two quantities is a typing error (a voltage read as a displacement)
+        twin = next((c for c, v in out.items() if v == col), None)
+        if twin is not None:
+            raise ValueError(f"--columns: {k}={col} is the column already given to {twin}")
         out[k] = col
     return out
 

@@ -44,6 +44,7 @@ def run(ns) -> None:
     from ..compensate.causal import output_columns
     from ..io import write_csv
 
+    out = out_path(ns.output, (ns.model, ns.trajectory))
     model = load_model(ns.model)
     lo, hi = default_limits(model)
     lo = lo if ns.umin is None else ns.umin
@@ -56,7 +57,7 @@ def run(ns) -> None:
         res = compensate(model, rec.hd, rec.dt, limits=(lo, hi), explicit=ns.explicit, preview=ns.preview)
     for w in caught:
         print(f"fonbw compensate: warning: {' '.join(str(w.message).split())}", file=sys.stderr)
-    write_csv(out_path(ns.output), output_columns(model, res, rec.t))
+    write_csv(out, output_columns(model, res, rec.t))
     c = res.counts
     print(f"wrote {ns.output}: {len(res.u)} samples, u in [{res.u.min():.4g}, {res.u.max():.4g}] V "
           f"(limits {lo:g}..{hi:g} V); {c['saturated_low']} sample(s) at u_min, {c['saturated_high']} at u_max, "

@@ -41,7 +41,14 @@ def run(ns) -> None:
     writing the outputs) if the run stopped early, ValueError on bad arguments."""
     from ..io import atomic_open, write_csv
     from ..loop import CosimError, run_cosim
+    from .records import out_path
 
+    # checked before the run, which can take minutes
+    reads = [ns.model, ns.truth]
+    if ns.json_out:
+        out_path(ns.json_out, reads)
+    if ns.csv_out:
+        out_path(ns.csv_out, [*reads, ns.json_out])
     res = run_cosim(ns.scenario, ns.mode, ns.master, T=ns.T, dt=ns.dt, plant=ns.plant,
                     models={"compensator": ns.model, "hysteresis": ns.truth},
                     bandwidth_hz=ns.bandwidth, fmu_dir=ns.fmu_dir, native=ns.native)

@@ -11,7 +11,7 @@ optionally a self-contained HTML report) and prints the verdict in one line.
 """
 from __future__ import annotations
 
-from .records import add_record_arguments, read_records
+from .records import add_record_arguments, out_path, read_records
 
 
 def add_arguments(parser):
@@ -44,6 +44,11 @@ def run(ns):
     from .. import load_model
     from ..gap import write_html, write_json
     from ..gap.attribute import diagnose
+
+    reads = [*ns.train, *ns.validate, getattr(ns, "model", None)]
+    out_path(ns.json, reads)
+    if getattr(ns, "html", None):
+        out_path(ns.html, [*reads, ns.json])
     train = read_records(ns.train, ns)
     val = read_records(ns.validate, ns)
     model = load_model(ns.model) if getattr(ns, "model", None) else None

@@ -74,9 +74,9 @@ def partial_path(output) -> str:
 def run(ns) -> None:
     from ..fleet.fit import identify_kwargs, identify_paths, write_model
 
-    out = out_path(ns.output)
+    out = out_path(ns.output, ns.data)
     if ns.plot:
-        out_path(ns.plot)
+        out_path(ns.plot, [*ns.data, out])
     options = _options(ns)
     started = []
 
@@ -101,24 +101,31 @@ def run(ns) -> None:
         raise KeyboardInterrupt(f"{out} left as it was; the best model so far (training RMS {res.rms:.4g} µm "
                                 f"after {res.nfev} evaluations) is in {part}")
     write_model(out, fit.document)
-    print(f"wrote {out}: {res.model.kind} model, training RMS {res.rms:.4g} µm"
-          + (f" ({res.message})" if res.message else ""))
-    for w in getattr(res, "warnings", []):
-        say(f"warning: {w}")
-    if len(recs) > 1 and not ns.no_holdout:
-        _holdout(recs, identify_kwargs(options, fit.burn_in, workers=ns.workers))
-    if ns.plot:
-        from ..fitplot import fit_plot
+    try:
+        print(f"wrote {out}: {res.model.kind} model, training RMS {res.rms:.4g} µm"
+              + (f" ({res.message})" if res.message else ""))
+        for w in getattr(res, "warnings", []):
+            say(f"warning: {w}")
+        if len(recs) > 1 and not ns.no_holdout:
+            _holdout(recs, identify_kwargs(options, fit.burn_in, workers=ns.workers))
+        if ns.plot:
+            from ..fitplot import fit_plot
 
-        fit_plot(res.model, recs, ns.plot, title=f"identify: {res.model.kind} on {len(recs)} record(s)",
-                 burn_in=fit.burn_in)
-        print(f"wrote {ns.plot}")
+            fit_plot(res.model, recs, ns.plot, title=f"identify: {res.model.kind} on {len(recs)} record(s)",
+                     burn_in=fit.burn_in)
+            print(f"wrote {ns.plot}")
+    except KeyboardInterrupt:
+        # whatever the interrupted step said, the model is written by now
+        raise KeyboardInterrupt(f"{out} was written; the held-out check or the plot was cut short") from None
 
 
 def _holdout(recs, kw) -> None:
-    """Fit on all records but one, validate on that one; print each held-out RMS."""
+    """Fit on all records but one, validate on that one; print each held-out RMS.
+    A record the others cannot be fitted without (they hold a constant input,
+    every candidate diverges on them) is said and skipped: the model on every
+    record is written by then, and this check only reports on it."""
     from ..identify import identify
-    from ..objective import score
+    from ..objective import DivergedError, score
     from ..start import rest_level
 
     kw = {**kw, "progress": False}
@@ -126,9 +133,13 @@ def _holdout(recs, kw) -> None:
     for i, r in enumerate(recs):
         rest = [x for j, x in enumerate(recs) if j != i]
         sub = {**kw, "burn_in": [b for j, b in enumerate(kw["burn_in"]) if j != i]}
-        fit = identify(rest, **sub)
+        try:
+            fit = identify(rest, **sub)
+        except (ValueError, DivergedError) as exc:
+            say(f"warning: {r.path} not held out: the other record(s) cannot be fitted alone ({exc})")
+            continue
         if fit.message == "interrupted":
-            raise KeyboardInterrupt("the model was written; the held-out check was cut short")
+            raise KeyboardInterrupt
         met = score(fit.model, r, kw["burn_in"][i], rest=rest_u)
         print(f"held out {r.path}: RMS {met['rms']:.4g} µm = {met['rms_percent']:.3g} % of range "
               f"(model fitted on the other {len(rest)} record(s))")

@@ -3,8 +3,12 @@
 Every command validates its input at the boundary. On bad input it prints one
 line ``fonbw <command>: error: <file>: <field/row>: <reason>`` on stderr and
 exits with code 2, with no traceback, and without writing or half-writing
-any output file (outputs are written atomically). Ctrl-C exits with code 130
-and leaves previous outputs untouched.
+any output file (outputs are written atomically; an output file whose path
+names an input is refused up front, :func:`fonbw.cli.records.out_path`). Two
+exits with code 2 write their output on purpose and say so: ``compensate``
+on a trajectory out of the model's reach (the closest input) and ``cosim``
+when a run stops early (the trace up to the stop). Ctrl-C exits with code
+130 and leaves previous outputs untouched.
 
 Each command is a module of this package with a module docstring (its
 description), ``add_arguments(parser)`` and ``run(ns)``; its one-line help
@@ -86,8 +90,9 @@ def main(argv=None) -> int:
     """Run the command line; returns the exit code (0, 2 on bad input, 130 on Ctrl-C)."""
     args = sys.argv[1:] if argv is None else list(argv)
     command = next((a for a in args if not a.startswith("-")), None)
-    parser = build_parser(command if command in COMMANDS else None)
     try:
+        # building the parser imports the command's module, which may take a second
+        parser = build_parser(command if command in COMMANDS else None)
         ns = parser.parse_args(args)
     except KeyboardInterrupt:
         print("fonbw: interrupted", file=sys.stderr)
@@ -97,10 +102,11 @@ def main(argv=None) -> int:
         return 2
     prog = f"fonbw {ns.command}"
     from ..io import DataError
+    from ..objective import DivergedError
 
     try:
         ns.func(ns)
-    except (CLIError, DataError, ValueError, OSError) as exc:
+    except (CLIError, DataError, ValueError, OSError, DivergedError) as exc:
         msg = " ".join(str(exc).split()) or type(exc).__name__
         print(f"{prog}: error: {msg}", file=sys.stderr)
         return 2

@@ -145,9 +145,44 @@ def load_model(path):
     return _load(path)
 
 
-def out_path(path):
-    """`path`, once its folder is known to exist (checked before long work starts)."""
+def _same_file(a, b):
+    """Whether paths `a` and `b` name one file (relative, through links, or hard-linked)."""
+    a, b = os.fspath(a), os.fspath(b)
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one of them does not exist yet
+        return False
+
+
+def out_path(path, inputs=()):
+    """`path`, once it is known to be writable, checked before long work starts.
+
+    Refused (:class:`CLIError`): an empty path, an existing directory, a
+    folder that does not exist or cannot be written in (tried with a file
+    that is removed at once), and a path that names one of `inputs` (the
+    files the command reads or its other outputs), which the output would
+    replace.
+    """
+    import tempfile
+
+    path = os.fspath(path)
+    if not path.strip():
+        raise CLIError("the output path is empty")
+    if os.path.isdir(path):
+        raise CLIError(f"{path}: is a directory; give a file name for the output")
     d = os.path.dirname(os.path.abspath(path))
+    if os.path.exists(d) and not os.path.isdir(d):
+        raise CLIError(f"{path}: {d} is a file, not a folder")
     if not os.path.isdir(d):
         raise CLIError(f"{path}: output directory {d} does not exist")
+    same = next((os.fspath(q) for q in inputs if q and _same_file(q, path)), None)
+    if same is not None:
+        raise CLIError(f"{path}: is also {same}, which this command reads or writes; write the output elsewhere")
+    try:
+        with tempfile.NamedTemporaryFile(dir=d, prefix=".fonbw-write-check-"):
+            pass
+    except OSError as exc:
+        raise CLIError(f"{path}: cannot write in {d}: {exc.strerror or exc}") from None
     return path

@@ -24,6 +24,7 @@ def run(ns) -> None:
     from ..io import write_csv
     from ..objective import simulate_record
 
+    out = out_path(ns.output, (ns.model, ns.input))
     m = load_model(ns.model)
     if ns.memory and hasattr(m, "memory"):
         d = m.to_dict()
@@ -31,5 +32,5 @@ def run(ns) -> None:
         m = model_from_dict(d, source=ns.model)
     (rec,) = read_records([ns.input], ns, need=("u",))
     y = simulate_record(m, rec.u, rec.dt)  # from the model's recorded start
-    write_csv(out_path(ns.output), {"t": rec.t, "u": rec.u, "y": y})
+    write_csv(out, {"t": rec.t, "u": rec.u, "y": y})
     print(f"wrote {ns.output}: {len(y)} samples at dt = {rec.dt:.6g} s, y in [{y.min():.4g}, {y.max():.4g}] µm")

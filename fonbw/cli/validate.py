@@ -103,15 +103,29 @@ def _say_start(r) -> str:
             "instead)")
 
 
+def _strict(v):
+    """`v` with every non-finite float replaced by None, recursively."""
+    import math
+
+    if isinstance(v, dict):
+        return {k: _strict(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_strict(x) for x in v]
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
 def run(ns) -> None:
     m = load_model(ns.model)
     if ns.plot:
-        out_path(ns.plot)
+        out_path(ns.plot, [ns.model, *ns.data, ns.history])
     rows, recs, burns, hist = _rows(ns, m)
     out = rows[0] if len(rows) == 1 else {"records": rows,
                                           **{k: max(r[k] for r in rows) for k in ("rms", "rms_percent", "max_abs")}}
     if ns.json:
-        print(json.dumps({"model": ns.model, "kind": m.kind, **out}, indent=2))
+        # strict JSON: a figure that is not a number (the % of a record whose output never moves) is null
+        print(json.dumps(_strict({"model": ns.model, "kind": m.kind, **out}), indent=2, allow_nan=False))
     else:
         for r in rows:
             print(f"{r['file']}: RMS {r['rms']:.4g} µm = {r['rms_percent']:.3g} % of range {r['range']:.4g} µm, "

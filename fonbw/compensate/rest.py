@@ -49,6 +49,10 @@ def rest_cycle(u_range, dt, T=REST_CYCLE_T) -> np.ndarray:
     dt, T = float(dt), float(T)
     if not (dt > 0.0 and T > 0.0):
         raise ValueError(f"dt and T must be positive [s], got dt={dt!r}, T={T!r}")
+    if T / dt > REST_MAX_STEPS:
+        # as the native FMU refuses it at initialization: a cycle, not a hang
+        raise ValueError(f"a rest cycle of T = {T:g} s at dt = {dt:g} s is {T / dt:.3g} steps, more than "
+                         f"the {REST_MAX_STEPS:.0e} a start may run")
     L = max(int(round(T / dt)), 8)
     u0 = min(max(0.0, lo), hi)
     return u0 + (hi - u0) * 0.5 * (1.0 - np.cos(2.0 * np.pi * np.arange(1, L + 1) / L))

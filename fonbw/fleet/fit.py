@@ -183,11 +183,14 @@ def identify_paths(paths, options, *, progress: bool = False, workers: int | Non
     from ..io import input_range
     from ..start import burn_ins
     from ..identify import identify
+    from ..objective import DivergedError, as_records
 
     # Read first: a missing or malformed file is reported by the reader, not by the digest.
     recs = read_records(paths, SimpleNamespace(**options))
     digest = records_digest(paths, options)
     burn_in = burn_ins(recs, say)
+    # records that cannot be identified are refused by name, before a rest cycle is put in front of them
+    as_records(recs)
     if options.get("rest_cycle"):
         late = [r.path for r, b in zip(recs, burn_in) if b > 0]
         if late:
@@ -201,7 +204,10 @@ def identify_paths(paths, options, *, progress: bool = False, workers: int | Non
     kw = identify_kwargs(options, burn_in, progress=progress, workers=workers)
     if announce is not None:
         announce(recs, kw)
-    res = identify(recs, **kw)
+    try:
+        res = identify(recs, **kw)
+    except DivergedError as exc:
+        raise DivergedError(f"{', '.join(map(str, paths))}: {exc}") from None
     if options.get("rest_cycle") and res.model is not None:  # the partial model too
         from ..compensate.rest import rest_start_meta
 

@@ -60,7 +60,10 @@ def _lam(name, v):
 
 
 def _ku(ku):
-    arr = np.atleast_1d(np.asarray(ku, dtype=float)) if not isinstance(ku, str) else None
+    try:
+        arr = np.atleast_1d(np.asarray(ku, dtype=float)) if not isinstance(ku, str) else None
+    except (TypeError, ValueError):
+        arr = None
     if arr is None or arr.ndim != 1 or arr.size == 0:
         raise ValueError(f"parameter ku must be a number or a non-empty list of numbers, got {ku!r}")
     if not np.all(np.isfinite(arr)):

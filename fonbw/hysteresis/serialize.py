@@ -6,6 +6,7 @@ error messages name the file (or source) and the offending field.
 from __future__ import annotations
 
 import json
+import math
 import os
 
 from .models import CBW, FONBW, KINDS, META_KEYS, NBW, Zhu2016
@@ -22,14 +23,78 @@ def model_from_dict(d: dict, source: str = "<dict>"):
     if not isinstance(params, dict):
         raise ValueError(f"{source}: field 'params' must be an object")
     cls = {"fonbw": FONBW, "nbw": NBW, "cbw": CBW, "zhu": Zhu2016}[kind]
+    meta = _meta(d, source)
     try:
         m = cls(**params)
-        m.meta = {k: d[k] for k in META_KEYS if k in d}
+        m.meta = meta
         return m
     except TypeError as exc:
-        raise ValueError(f"{source}: field 'params': {exc}") from None
+        raise ValueError(f"{source}: field 'params': {_arguments(cls, params) or exc}") from None
     except ValueError as exc:
         raise ValueError(f"{source}: field 'params': {exc}") from None
+
+
+def _arguments(cls, params):
+    """What is wrong with the names in `params` for the model class `cls`, in
+    the file's words (missing or unknown parameters), or None."""
+    import inspect
+
+    sig = inspect.signature(cls)
+    names = [k for k, p in sig.parameters.items() if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD)]
+    missing = [k for k, p in sig.parameters.items()
+               if k in names and p.default is inspect.Parameter.empty and k not in params]
+    unknown = [k for k in params if k not in names]
+    parts = ([f"missing parameter(s) {', '.join(missing)}"] if missing else []) + \
+        ([f"unknown parameter(s) {', '.join(map(str, unknown))} (a {cls.kind} model takes {', '.join(names)})"]
+         if unknown else [])
+    return "; ".join(parts) or None
+
+
+#: Longest rest cycle a model file may ask for [s] (``start.T``; the default cycle is 1 s):
+#: it runs at every start of a compensator, sample by sample, so a longer one is a typing
+#: error, not a convention (an hour at 10 kHz would be 3.6e7 steps before the first output).
+REST_T_MAX = 60.0
+
+
+def _range(v, source, field):
+    """[lo, hi] of two finite numbers with lo < hi, else a one-line error naming `field`."""
+    ok = (isinstance(v, (list, tuple)) and len(v) == 2
+          and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v))
+    if not ok or not v[0] < v[1]:
+        raise ValueError(f"{source}: field {field!r}: expected [low, high] in V with low < high, got {v!r}")
+    return [float(v[0]), float(v[1])]
+
+
+def _meta(d, source):
+    """The provenance fields of `d` (:data:`~fonbw.hysteresis.models.META_KEYS`),
+    checked where the tools read them: ``u_range`` ([u_min, u_max] V),
+    ``start`` (``{"rest_cycle": [lo, hi], "T": seconds}``) and
+    ``invertibility`` (an object); null stands for absent."""
+    meta = {k: d[k] for k in META_KEYS if k in d}
+    if meta.get("u_range") is not None:
+        meta["u_range"] = _range(meta["u_range"], source, "u_range")
+    st = meta.get("start")
+    if st is not None:
+        if not isinstance(st, dict):
+            raise ValueError(f"{source}: field 'start': expected an object such as "
+                             f'{{"rest_cycle": [0, 120], "T": 1.0}}, got {st!r}')
+        # a start without its cycle (or with a misspelt key) would run from the virgin state unsaid
+        odd = [k for k in st if k not in ("rest_cycle", "T")]
+        if odd or "rest_cycle" not in st:
+            raise ValueError(f"{source}: field 'start': expected the keys rest_cycle ([low, high] V) and "
+                             f"optionally T (s), got {sorted(map(str, st))}")
+        st = {**st, "rest_cycle": _range(st["rest_cycle"], source, "start.rest_cycle")}
+        if "T" in st:
+            T = st["T"]
+            if (isinstance(T, bool) or not isinstance(T, (int, float)) or not math.isfinite(T)
+                    or not 0 < T <= REST_T_MAX):
+                raise ValueError(f"{source}: field 'start.T': the rest cycle's duration must be a number of "
+                                 f"seconds in (0, {REST_T_MAX:g}], got {T!r}")
+            st = {**st, "T": float(T)}
+        meta["start"] = st
+    if meta.get("invertibility") is not None and not isinstance(meta["invertibility"], dict):
+        raise ValueError(f"{source}: field 'invertibility': expected an object, got {meta['invertibility']!r}")
+    return meta
 
 
 def load_model(path):

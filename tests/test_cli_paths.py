@@ -1,0 +1,226 @@
+"""Where the command line writes, and the inputs it refuses before any work:
+outputs that would replace an input (named relatively or through a link),
+unusable output paths, a drive that never moves, every candidate diverging,
+bad provenance fields and parameter names in a model file, a record whose
+output never moves in strict JSON, and a held-out check that cannot run or
+is cut short by Ctrl-C once the model is written."""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import fonbw
+from fonbw.cli.main import main
+from fonbw.io import write_csv
+from fonbw.paper import TABLE1_FONBW
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "fonbw", *map(str, args)], capture_output=True, text=True,
+                          timeout=600)
+
+
+@pytest.fixture(scope="module")
+def d(tmp_path_factory):
+    d = tmp_path_factory.mktemp("paths")
+    m = fonbw.FONBW(**TABLE1_FONBW)
+    m.save(d / "model.json")
+    t = np.arange(800) * 1e-3
+    for i, f in enumerate((1.0, 2.0)):
+        u = 60 - 60 * np.cos(2 * np.pi * f * t)
+        write_csv(d / f"r{i}.csv", {"t": t, "u": u, "y": m.simulate(u, 1e-3)})
+    write_csv(d / "input.csv", {"t": t, "u": 60 - 60 * np.cos(2 * np.pi * t)})
+    return d
+
+
+@pytest.mark.parametrize("args, victim", [
+    (["simulate", "{d}/model.json", "{d}/input.csv", "-o", "{d}/input.csv"], "input.csv"),
+    (["simulate", "{d}/model.json", "{d}/input.csv", "-o", "{d}/model.json"], "model.json"),
+    (["identify", "{d}/r0.csv", "{d}/r1.csv", "-o", "{d}/r1.csv", "--max-evals", "60"], "r1.csv"),
+    (["validate", "{d}/model.json", "{d}/r0.csv", "--plot", "{d}/r0.csv"], "r0.csv"),
+    (["diagnose", "--train", "{d}/r0.csv", "--validate", "{d}/r1.csv", "--json", "{d}/r1.csv"], "r1.csv"),
+    (["diagnose", "--train", "{d}/r0.csv", "--validate", "{d}/r1.csv", "--json", "{d}/g.json",
+      "--html", "{d}/g.json"], None),
+])
+def test_an_output_that_names_an_input_is_refused_and_the_input_kept(d, args, victim):
+    before = {p.name: p.read_bytes() for p in d.iterdir()}
+    r = run(*[a.format(d=d) for a in args])
+    assert r.returncode == 2 and "Traceback" not in r.stderr and r.stderr.count("\n") == 1, r.stderr
+    assert "is also" in r.stderr and "write the output elsewhere" in r.stderr
+    # nothing replaced, nothing added (the refusal comes before any work)
+    assert {p.name: p.read_bytes() for p in d.iterdir()} == before
+    assert victim is None or victim in r.stderr
+
+
+def test_an_unusable_output_path_is_refused_up_front(d, monkeypatch, capsys):
+    sim = ["simulate", str(d / "model.json"), str(d / "input.csv"), "-o"]
+    assert main(sim + [str(d)]) == 2
+    assert f"{d}: is a directory; give a file name for the output" in capsys.readouterr().err
+    assert main(sim + [""]) == 2
+    assert "the output path is empty" in capsys.readouterr().err
+    assert main(sim + [str(d / "input.csv" / "o.csv")]) == 2
+    assert f"{d / 'input.csv'} is a file, not a folder" in capsys.readouterr().err
+    assert main(sim + [str(d / "no" / "o.csv")]) == 2
+    assert f"output directory {d / 'no'} does not exist" in capsys.readouterr().err
+
+    import tempfile
+
+    def refused(*a, **k):
+        raise PermissionError(1, "Operation not permitted")
+
+    # a folder the user may not write in (root ignores permission bits, so the refusal is simulated)
+    monkeypatch.setattr(tempfile, "NamedTemporaryFile", refused)
+    assert main(sim + [str(d / "o.csv")]) == 2
+    assert f"{d / 'o.csv'}: cannot write in {d}: Operation not permitted" in capsys.readouterr().err
+    assert not (d / "o.csv").exists()
+
+
+def test_an_input_named_relatively_or_through_a_link_is_still_an_input(d, monkeypatch, capsys):
+    monkeypatch.chdir(d)
+    (d / "link.csv").symlink_to(d / "input.csv")
+    before = (d / "input.csv").read_bytes()
+    for out in ("input.csv", "./input.csv", str(d / "link.csv")):
+        assert main(["simulate", "model.json", "link.csv", "-o", out]) == 2
+        assert "is also link.csv" in capsys.readouterr().err
+    assert main(["compensate", "model.json", "input.csv", "-o", "model.json"]) == 2
+    assert "model.json: is also model.json" in capsys.readouterr().err
+    assert (d / "input.csv").read_bytes() == before
+    (d / "link.csv").unlink()
+
+
+def test_a_drive_that_never_moves_is_refused(d, tmp_path):
+    t = np.arange(400) * 1e-3
+    write_csv(tmp_path / "hold.csv", {"t": t, "u": np.full(t.size, 50.0), "y": 5.0 + 0.01 * np.sin(t)})
+    r = run("identify", tmp_path / "hold.csv", "--model", "nbw", "--max-evals", "60", "-o", tmp_path / "m.json")
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert f"{tmp_path / 'hold.csv'}: the input u is constant (50 V) in every record" in r.stderr
+    assert not (tmp_path / "m.json").exists()
+
+
+def test_a_held_out_fit_that_cannot_run_is_said_and_the_model_kept(d, tmp_path, capsys):
+    # beside a moving record, a record of the stage at rest fits (the two together), but not alone
+    t = np.arange(800) * 1e-3
+    write_csv(tmp_path / "hold.csv", {"t": t, "u": np.zeros(t.size), "y": np.zeros(t.size)})
+    out = tmp_path / "m.json"
+    code = main(["identify", str(d / "r0.csv"), str(tmp_path / "hold.csv"), "-o", str(out), "--model", "nbw",
+                 "--max-evals", "60", "-q"])
+    cap = capsys.readouterr()
+    assert code == 0, cap.err
+    assert f"warning: {d / 'r0.csv'} not held out: the other record(s) cannot be fitted alone" in cap.err
+    assert f"held out {tmp_path / 'hold.csv'}: RMS" in cap.out
+    assert fonbw.load_model(out).kind == "nbw"
+
+
+def test_every_candidate_diverging_is_bad_input_naming_the_records(d, tmp_path, monkeypatch, capsys):
+    from fonbw import hysteresis as hyst
+
+    monkeypatch.setattr(hyst, "simulate_population",
+                        lambda kind, theta, u, dt, memory="fast", N=3: np.full((theta.shape[0], u.size), np.nan))
+    code = main(["identify", str(d / "r0.csv"), "-o", str(tmp_path / "m.json"), "--model", "nbw",
+                 "--max-evals", "60", "-q"])
+    err = capsys.readouterr().err
+    assert code == 2 and f"fonbw identify: error: {d / 'r0.csv'}: identify('nbw'): every candidate diverged" in err
+    assert not (tmp_path / "m.json").exists()
+
+
+@pytest.mark.parametrize("meta, field", [
+    ({"start": "rest_cycle"}, "field 'start': expected an object"),
+    ({"start": ["rest_cycle"]}, "field 'start': expected an object"),
+    ({"start": {"rest_cycle": [0, 120], "T": 1e12}}, "field 'start.T'"),
+    ({"start": {"rest_cycle": [0, 120], "T": 61.0}}, "field 'start.T'"),
+    ({"start": {}}, "field 'start': expected the keys rest_cycle"),
+    ({"start": {"T": 1.0}}, "field 'start': expected the keys rest_cycle"),
+    ({"start": {"rest-cycle": [0, 120]}}, "field 'start': expected the keys rest_cycle"),
+    ({"start": {"rest_cycle": [0, 120], "T": -1.0}}, "field 'start.T'"),
+    ({"start": {"rest_cycle": [0, 120], "T": "1"}}, "field 'start.T'"),
+    ({"start": {"rest_cycle": [0]}}, "field 'start.rest_cycle'"),
+    ({"start": {"rest_cycle": ["a", 120]}}, "field 'start.rest_cycle'"),
+    ({"u_range": 5}, "field 'u_range'"),
+    ({"u_range": [120, 0]}, "field 'u_range'"),
+    ({"u_range": [0, float("nan")]}, "field 'u_range'"),
+    ({"invertibility": 3}, "field 'invertibility'"),
+])
+def test_bad_provenance_fields_of_a_model_file_are_named(d, tmp_path, meta, field):
+    doc = {**json.loads((d / "model.json").read_text()), **meta}
+    with pytest.raises(ValueError, match="^bad.json: " + field.replace("(", r"\(")):
+        fonbw.hysteresis.model_from_dict(doc, source="bad.json")
+    (tmp_path / "m.json").write_text(json.dumps(doc))
+    write_csv(tmp_path / "traj.csv", {"t": np.arange(50) * 1e-3, "Hd": np.linspace(0, 5, 50)})
+    r = run("compensate", tmp_path / "m.json", tmp_path / "traj.csv", "-o", tmp_path / "u.csv")
+    assert r.returncode == 2 and "Traceback" not in r.stderr and r.stderr.count("\n") == 1, r.stderr
+    assert f"{tmp_path / 'm.json'}: {field}" in r.stderr
+    assert not (tmp_path / "u.csv").exists()
+
+
+def test_good_provenance_fields_still_load(d):
+    doc = {**json.loads((d / "model.json").read_text()), "u_range": [0, 115], "start": None,
+           "invertibility": {"dt": 1e-4}}
+    m = fonbw.hysteresis.model_from_dict({**doc, "start": {"rest_cycle": [0, 120], "T": 1}}, source="ok.json")
+    assert m.meta["start"] == {"rest_cycle": [0.0, 120.0], "T": 1.0} and m.meta["u_range"] == [0.0, 115.0]
+    # null stands for absent and round-trips as it was
+    assert fonbw.hysteresis.model_from_dict(doc, source="ok.json").to_dict()["start"] is None
+
+
+def test_a_rest_cycle_longer_than_a_start_may_run_is_refused():
+    from fonbw.compensate.rest import REST_MAX_STEPS, rest_cycle
+
+    assert rest_cycle((0, 120), 1e-3, 1.0).size == 1000
+    with pytest.raises(ValueError, match="more than the 1e\\+08 a start may run"):
+        rest_cycle((0, 120), 1e-6, 1.01 * REST_MAX_STEPS * 1e-6)
+
+
+def test_validate_json_stays_strict_when_the_output_never_moves(d, tmp_path):
+    t = np.arange(400) * 1e-3
+    write_csv(tmp_path / "still.csv", {"t": t, "u": np.zeros(t.size), "y": np.zeros(t.size)})
+    r = run("validate", d / "model.json", tmp_path / "still.csv", "--json", "--keep-offset")
+    assert r.returncode == 0, r.stderr
+
+    def no_constants(name):
+        raise AssertionError(f"{name} in the JSON")
+
+    res = json.loads(r.stdout, parse_constant=no_constants)
+    assert res["rms_percent"] is None and res["range"] == 0.0 and np.isfinite(res["rms"])
+
+
+def test_ctrl_c_after_the_model_is_written_says_so(d, tmp_path, monkeypatch, capsys):
+    import fonbw.cli.identify as cli_identify
+
+    def interrupted(recs, kw):
+        # what the held-out fit's search says when cut before its first population
+        raise KeyboardInterrupt("interrupted before the search had a best candidate")
+
+    monkeypatch.setattr(cli_identify, "_holdout", interrupted)
+    out = tmp_path / "m.json"
+    code = main(["identify", str(d / "r0.csv"), str(d / "r1.csv"), "-o", str(out), "--model", "nbw",
+                 "--max-evals", "60", "-q"])
+    err = capsys.readouterr().err
+    assert code == 130
+    assert err.rstrip().endswith(f"fonbw identify: interrupted; {out} was written; the held-out check or the "
+                                 "plot was cut short")
+    assert fonbw.load_model(out).kind == "nbw"
+
+
+def test_parameter_errors_of_a_model_file_speak_of_its_fields():
+    load = fonbw.hysteresis.model_from_dict
+    with pytest.raises(ValueError, match=r"^m.json: field 'params': missing parameter\(s\) kh, rho, sigma, n$"):
+        load({"kind": "nbw", "params": {"ku": 1.0}}, source="m.json")
+    nbw = {"ku": 1.0, "kh": 1.0, "rho": 1.0, "sigma": 0.5, "n": 1.0}
+    with pytest.raises(ValueError, match=r"unknown parameter\(s\) lam1 \(a nbw model takes ku, kh, rho, sigma, n\)"):
+        load({"kind": "nbw", "params": {**nbw, "lam1": 0.9}}, source="m.json")
+    with pytest.raises(ValueError, match="parameter ku must be a number or a non-empty list of numbers, got"):
+        load({"kind": "nbw", "params": {**nbw, "ku": ["a"]}}, source="m.json")
+    assert load({"kind": "nbw", "params": nbw}).kind == "nbw"
+
+
+def test_a_column_given_to_two_quantities_is_refused():
+    from fonbw.reader import parse_columns
+
+    assert parse_columns("t=1,u=2,y=3") == {"t": 1, "u": 2, "y": 3}
+    with pytest.raises(ValueError, match="^--columns: u=1 is the column already given to t$"):
+        parse_columns("t=1,u=1,y=3")
+    with pytest.raises(ValueError, match="^--columns: y=volts is the column already given to u$"):
+        parse_columns("t=time,u=volts,y=volts")
+    with pytest.raises(ValueError, match="^--columns: u is given twice$"):
+        parse_columns("t=1,u=2,U=3")
