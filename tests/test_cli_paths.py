@@ -161,6 +161,10 @@ def test_good_provenance_fields_still_load(d):
     assert m.meta["start"] == {"rest_cycle": [0.0, 120.0], "T": 1.0} and m.meta["u_range"] == [0.0, 115.0]
     # null stands for absent and round-trips as it was
     assert fonbw.hysteresis.model_from_dict(doc, source="ok.json").to_dict()["start"] is None
+    # numbers made in code (numpy scalars) are numbers too
+    m = fonbw.hysteresis.model_from_dict({**doc, "u_range": [np.float32(0), np.float64(115)],
+                                          "start": {"rest_cycle": (np.int64(0), 120.0), "T": np.float32(1)}})
+    assert m.meta["u_range"] == [0.0, 115.0] and m.meta["start"] == {"rest_cycle": [0.0, 120.0], "T": 1.0}
 
 
 def test_a_rest_cycle_longer_than_a_start_may_run_is_refused():

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+import numbers
 import os
 
 from .models import CBW, FONBW, KINDS, META_KEYS, NBW, Zhu2016
@@ -59,7 +60,7 @@ REST_T_MAX = 60.0
 def _range(v, source, field):
     """[lo, hi] of two finite numbers with lo < hi, else a one-line error naming `field`."""
     ok = (isinstance(v, (list, tuple)) and len(v) == 2
-          and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v))
+          and all(isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x) for x in v))
     if not ok or not v[0] < v[1]:
         raise ValueError(f"{source}: field {field!r}: expected [low, high] in V with low < high, got {v!r}")
     return [float(v[0]), float(v[1])]
@@ -86,7 +87,7 @@ def _meta(d, source):
         st = {**st, "rest_cycle": _range(st["rest_cycle"], source, "start.rest_cycle")}
         if "T" in st:
             T = st["T"]
-            if (isinstance(T, bool) or not isinstance(T, (int, float)) or not math.isfinite(T)
+            if (isinstance(T, bool) or not isinstance(T, numbers.Real) or not math.isfinite(T)
                     or not 0 < T <= REST_T_MAX):
                 raise ValueError(f"{source}: field 'start.T': the rest cycle's duration must be a number of "
                                  f"seconds in (0, {REST_T_MAX:g}], got {T!r}")
