@@ -10,12 +10,9 @@ import fonbw
 from fonbw.io import read_record, write_csv
 from fonbw.paper import TABLE1_FONBW
 
+from cli_process import run
+
 TABLE1 = TABLE1_FONBW
-
-
-def run(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "fonbw", *map(str, args)], capture_output=True, text=True,
-                          cwd=cwd, timeout=600)
 
 
 @pytest.fixture(scope="module")

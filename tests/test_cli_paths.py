@@ -5,8 +5,6 @@ bad provenance fields and parameter names in a model file, a record whose
 output never moves in strict JSON, and a held-out check that cannot run or
 is cut short by Ctrl-C once the model is written."""
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -16,10 +14,7 @@ from fonbw.cli.main import main
 from fonbw.io import write_csv
 from fonbw.paper import TABLE1_FONBW
 
-
-def run(*args):
-    return subprocess.run([sys.executable, "-m", "fonbw", *map(str, args)], capture_output=True, text=True,
-                          timeout=600)
+from cli_process import run
 
 
 @pytest.fixture(scope="module")

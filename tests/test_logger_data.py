@@ -1,8 +1,6 @@
 """Real-logger-like data through the command line: jittered time stamps, bipolar
 ±150 V drive, a sensor offset at rest before the drive starts, noise, drift."""
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -11,10 +9,7 @@ from fonbw.bench import Bench
 from fonbw.signals import bipolar_input
 from fonbw.io import read_record, rest_offset, write_csv
 
-
-def run(*args):
-    return subprocess.run([sys.executable, "-m", "fonbw", *map(str, args)], capture_output=True, text=True,
-                          timeout=900)
+from cli_process import run
 
 
 @pytest.fixture(scope="module")

@@ -1,8 +1,6 @@
 """Logger files as they come: column mapping, no header, delimiters, units,
 jittered time stamps; every refusal names file, row and reason, and exits 2
 from the command line."""
-import subprocess
-import sys
 import warnings
 
 import numpy as np
@@ -11,13 +9,10 @@ import pytest
 import fonbw
 from fonbw.io import DataError, UnitWarning, read_record
 
+from cli_process import run
+
 N = 400
 DT = 2e-4
-
-
-def run(*args):
-    return subprocess.run([sys.executable, "-m", "fonbw", *map(str, args)], capture_output=True, text=True,
-                          timeout=600)
 
 
 def signals(jitter=0.0, seed=0):
