@@ -386,7 +386,7 @@ def beyond_training(d, within_rates=True):
     # past the training inputs where the coverage flags say so: the amplitude
     # test is theirs, and the rail is tried only then
     top = checks.top_passed(d.coverage)
-    ctx = {"y": y, "u": u, "z": z, "fold": folds(d.val_s), "u_train": top,
+    ctx = {"y": y, "u": u, "z": z, "cfg": cur, "fold": folds(d.val_s), "u_train": top,
            "y_train": max(float(np.nanmax(r.y)) for r in raw),
            "starts": np.r_[0, np.cumsum([len(r.y) for r in d.val_s])[:-1]]}
     lib = {e.name: e for e in d.lib}
@@ -398,7 +398,7 @@ def beyond_training(d, within_rates=True):
     blocks, shifted, records, judged = _layout(d, ctx, blocks, within_rates)
     if not blocks:
         return
-    tried, name = _named(d, ctx, blocks, judged, cur["mse"], {k: lib[k].overruled_by for k in blocks})
+    tried, name = _named(d, ctx, blocks, judged, {k: lib[k].overruled_by for k in blocks})
     share = "gap_closed" if judged is None else "gap_closed_within"
     # a refused limit named: its rival passed and closed less (see pick)
     overruled = tried[name]["refused"] if name is not None else None
@@ -502,11 +502,11 @@ def _judged_records(d, ctx):
 
 def _score(d, ctx, blocks, lib, judged, before, left):
     """Each block's cross-fit on top of the configuration ``ctx["cfg"]`` of
-    `d` (default: its final one): its prediction of every scored sample and
-    MSE, its share of what the model leaves (`left` above the floor), its
-    fold parameters and refusal, and where `judged` (a mask) is set the MSE
-    and share on those samples, of a model MSE `before` there."""
-    y, cur = ctx["y"], d.current if ctx.get("cfg") is None else ctx["cfg"]
+    `d`: its prediction of every scored sample and MSE, its share of what
+    the model leaves (`left` above the floor), its fold parameters and
+    refusal, and where `judged` (a mask) is set the MSE and share on those
+    samples, of a model MSE `before` there."""
+    y, cur = ctx["y"], ctx["cfg"]
     tried = {}
     for name, (fn, _) in blocks.items():
         (pred, chosen), refused = fn(lib[name], d, ctx)
@@ -530,18 +530,17 @@ def limit_on(d, cfg, name, ctx, lifted=False):
     refusal when `lifted`), else None."""
     # a rail's predictions run the configuration's own model
     c = {**ctx, "z": np.concatenate(cfg["pred"]), "cfg": cfg}
-    tried, named = _named(d, c, {name: (BLOCKS[name], None)}, c.get("judged"), cfg["mse"], lifted=lifted)
+    tried, named = _named(d, c, {name: (BLOCKS[name], None)}, c.get("judged"), lifted=lifted)
     return tried[name] if named == name else None
 
 
-def _named(d, ctx, blocks, judged, mse, overruled_by=None, lifted=False):
-    """The `blocks` cross-fitted on top of ``ctx["cfg"]`` (default
-    ``d.current``; validation MSE `mse` [µm²]) in context `ctx`
-    (:func:`_score`), and the one :func:`pick` names
-    of them (None), each judged without its refusal when `lifted`: (tried, name).
-    Where `judged` (a mask) is set, the shares and MSEs picked on are those
-    of the judged samples."""
-    y, z = ctx["y"], ctx["z"]
+def _named(d, ctx, blocks, judged, overruled_by=None, lifted=False):
+    """The `blocks` cross-fitted on top of the configuration ``ctx["cfg"]``
+    (its predictions ``ctx["z"]``) in context `ctx` (:func:`_score`), and
+    the one :func:`pick` names of them (None), each judged without its
+    refusal when `lifted`: (tried, name). Where `judged` (a mask) is set,
+    the shares and MSEs picked on are those of the judged samples."""
+    y, z, mse = ctx["y"], ctx["z"], ctx["cfg"]["mse"]
     before = mse if judged is None else _sse(y[judged], z[judged]) / np.count_nonzero(judged)
     tried = _score(d, ctx, blocks, {e.name: e for e in d.lib}, judged, before, mse - d.sigma2)
     share = "gap_closed" if judged is None else "gap_closed_within"

@@ -48,7 +48,8 @@ def judge_again(d, before, ctx):
     before : dict
         The configuration the limit was cross-fitted on.
     ctx : dict
-        The stage's context (validation samples, folds, the judged samples).
+        The stage's context (validation samples, folds, the judged samples,
+        the configuration).
 
     Sets ``d.beyond["then"]`` (the effect named, or None) and, when one is
     named, ``d.current`` (its refit with the limit cross-fitted on top),
