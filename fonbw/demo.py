@@ -313,15 +313,14 @@ def _gc(c):
 
 def _later_steps_text(steps):
     """The later greedy steps as a table: why a further effect was or was not named."""
-    from .gap.selection import outcome_text
+    from .gap.selection import on_top_of_text, outcome_text
 
-    rows = [[", ".join(st["on_top_of"]) + (" (beyond training)" if st.get("beyond_training") else ""),
-             c["effect"], _gc(c), outcome_text(c)]
+    rows = [[on_top_of_text(st), c["effect"], _gc(c), outcome_text(c)]
             for st in steps for c in st["candidates"]]
     if not rows:
         return ""
     return ("\n\nLater steps, each candidate refit on top of the effects named before it, or its first-step "
-            "refit judged with a limit named beyond training on top (gap closed: "
+            "refit judged with a limit named beyond the training range on top (gap closed: "
             "the share it adds of the gap the nominal they are attributed on leaves, as above):\n\n"
             + md_table(["on top of", "effect", "gap closed", "named"], rows))
 

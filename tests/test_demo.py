@@ -52,7 +52,7 @@ def test_report_has_every_section_with_numbers(demo_dir):
 def test_gap_section_says_what_became_of_every_candidate(demo_dir):
     import json
 
-    from fonbw.gap.selection import outcome_text
+    from fonbw.gap.selection import on_top_of_text, outcome_text
 
     gap = _section((demo_dir / "report.md").read_text(encoding="utf-8"), "Sim-to-real gap")
     res = json.loads((demo_dir / "gap" / "gap.json").read_text(encoding="utf-8"))
@@ -63,7 +63,7 @@ def test_gap_section_says_what_became_of_every_candidate(demo_dir):
     assert len(steps) == len(res["verdict"]["effects"]) >= 1
     for st in steps:
         for c in st["candidates"]:
-            row = rf"^\| {re.escape(', '.join(st['on_top_of']))} \| {c['effect']} \| [^|]+ \| {re.escape(outcome_text(c))} \|$"
+            row = rf"^\| {re.escape(on_top_of_text(st))} \| {c['effect']} \| [^|]+ \| {re.escape(outcome_text(c))} \|$"
             assert re.search(row, gap, re.M)
 
 

@@ -427,6 +427,9 @@ def test_an_effect_a_limit_beyond_the_training_range_hid_is_named_after_it(ampli
     assert "saturation, amplifier" in v["message"]
     write_html(res, tmp_path / "gap.html")
     assert "On top of saturation named beyond the training range (val. RMS" in (tmp_path / "gap.html").read_text()
+    # the demo's report words that step as the HTML report does
+    from fonbw.demo import _later_steps_text
+    assert "| saturation named beyond the training range | amplifier |" in _later_steps_text(v["later_steps"])
 
 
 @pytest.mark.parametrize("accepted, same, most", [(["delay"], True, 3), ([], False, 3), ([], True, 1)])

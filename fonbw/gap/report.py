@@ -22,7 +22,7 @@ import math
 from ..io import atomic_open
 from .checks import flag_text
 from .edges import summary_text
-from .selection import form_text, outcome_text
+from .selection import form_text, on_top_of_text, outcome_text
 
 __all__ = ["write_json", "write_html"]
 
@@ -163,13 +163,6 @@ def _step_outcome(st):
     return "+" + st["accepted"] if st["accepted"] else "nothing added"
 
 
-def _on_top_of(st):
-    """What a later step's candidates were judged on top of, in words."""
-    on = ", ".join(st["on_top_of"])
-    # the first step's refits, judged again with that limit cross-fitted on them
-    return on + " named beyond the training range" if st.get("beyond_training") else on
-
-
 def write_html(result, path):
     """Write a self-contained HTML report of a :func:`fonbw.gap.diagnose` result."""
     figs = _figures(result)
@@ -178,7 +171,7 @@ def write_html(result, path):
     esc = html.escape
     rows = [_candidate_row(c) for c in result["candidates"]]
     later = "".join(
-        f"<h3>On top of {esc(_on_top_of(st))} (val. RMS {st['rms_validate']:.4g} µm): "
+        f"<h3>On top of {esc(on_top_of_text(st))} (val. RMS {st['rms_validate']:.4g} µm): "
         f"{esc(_step_outcome(st))}</h3>"
         f"<table>{_CANDIDATE_HEAD}{''.join(_candidate_row(c) for c in st['candidates'])}</table>"
         for st in v.get("later_steps", []))

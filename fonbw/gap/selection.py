@@ -295,6 +295,14 @@ def beyond_text(beyond):
             "would confirm it")
 
 
+def on_top_of_text(st):
+    """What a later greedy step's candidates were judged on top of, in words
+    (an entry of ``later_steps``; the demo's report and the HTML report)."""
+    on = ", ".join(st["on_top_of"])
+    # the first step's refits, judged again with that limit cross-fitted on them
+    return on + " named beyond the training range" if st.get("beyond_training") else on
+
+
 def outcome_text(c):
     """What became of a candidate entry (``accepted``, ``checks``), in words
     (the demo's report and the HTML report). A first-step entry is accepted
