@@ -29,7 +29,7 @@ import numpy as np
 from . import reader as _rd
 
 __all__ = ["DataError", "UnitWarning", "Record", "read_record", "parse_columns", "write_csv", "atomic_open",
-           "rest_offset", "zero_at_rest", "as_signal", "decimate", "TIME_UNITS", "LIMITS"]
+           "rest_offset", "zero_at_rest", "as_signal", "decimate", "jsonable", "TIME_UNITS", "LIMITS"]
 
 #: Minimum number of samples a record must hold to be usable.
 MIN_SAMPLES = 8
@@ -407,3 +407,23 @@ def write_csv(path, columns: Mapping[str, Iterable[float]], precision: int = 17)
     with atomic_open(path, "w", newline="") as fh:
         fh.write(",".join(columns.keys()) + "\n")
         np.savetxt(fh, data, delimiter=",", fmt=f"%.{precision}g")
+
+
+def jsonable(d, strict: bool = False):
+    """`d` with numpy scalars turned into Python ones, recursively (lists for tuples).
+
+    With `strict`, a float that is not finite becomes None, so that the result
+    is strict JSON (``json.dumps(..., allow_nan=False)``): a figure that is not
+    a number is null.
+    """
+    if isinstance(d, dict):
+        return {k: jsonable(v, strict) for k, v in d.items()}
+    if isinstance(d, (list, tuple)):
+        return [jsonable(v, strict) for v in d]
+    if isinstance(d, (np.bool_, bool)):
+        return bool(d)
+    if isinstance(d, (np.floating, float)):
+        return None if strict and not np.isfinite(d) else float(d)
+    if isinstance(d, np.integer):
+        return int(d)
+    return d

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 
+from ..io import jsonable
 from ..start import start_state
 from .records import CLIError, add_record_arguments, load_model, out_path, read_records
 
@@ -103,19 +104,6 @@ def _say_start(r) -> str:
             "instead)")
 
 
-def _strict(v):
-    """`v` with every non-finite float replaced by None, recursively."""
-    import math
-
-    if isinstance(v, dict):
-        return {k: _strict(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_strict(x) for x in v]
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
-    return v
-
-
 def run(ns) -> None:
     m = load_model(ns.model)
     if ns.plot:
@@ -125,7 +113,7 @@ def run(ns) -> None:
                                           **{k: max(r[k] for r in rows) for k in ("rms", "rms_percent", "max_abs")}}
     if ns.json:
         # strict JSON: a figure that is not a number (the % of a record whose output never moves) is null
-        print(json.dumps(_strict({"model": ns.model, "kind": m.kind, **out}), indent=2, allow_nan=False))
+        print(json.dumps(jsonable({"model": ns.model, "kind": m.kind, **out}, strict=True), indent=2, allow_nan=False))
     else:
         for r in rows:
             print(f"{r['file']}: RMS {r['rms']:.4g} µm = {r['rms_percent']:.3g} % of range {r['range']:.4g} µm, "

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-import numpy as np
+from ..io import jsonable
 
 __all__ = ["DiagnosisResult", "jsonable"]
 
@@ -104,18 +104,3 @@ class DiagnosisResult(Mapping):
     def __repr__(self):
         return (f"DiagnosisResult(effects={self.effects!r}, gap_closed={self.gap_closed:.3g}, "
                 f"unexplained={self.unexplained}, at_noise_floor={self.verdict['at_noise_floor']})")
-
-
-def jsonable(d):
-    """`d` with numpy scalars turned into Python ones, recursively (lists for tuples)."""
-    if isinstance(d, dict):
-        return {k: jsonable(v) for k, v in d.items()}
-    if isinstance(d, (list, tuple)):
-        return [jsonable(v) for v in d]
-    if isinstance(d, (np.floating, float)):
-        return float(d)
-    if isinstance(d, (np.bool_, bool)):
-        return bool(d)
-    if isinstance(d, np.integer):
-        return int(d)
-    return d
