@@ -211,6 +211,33 @@ def test_parameter_errors_of_a_model_file_speak_of_its_fields():
     with pytest.raises(ValueError, match="parameter ku must be a number or a non-empty list of numbers, got"):
         load({"kind": "nbw", "params": {**nbw, "ku": ["a"]}}, source="m.json")
     assert load({"kind": "nbw", "params": nbw}).kind == "nbw"
+    # JSON's true is no number, though Python's bool is an int
+    with pytest.raises(ValueError, match=r"^m.json: field 'params.n': expected a number, got true$"):
+        load({"kind": "nbw", "params": {**nbw, "n": True}}, source="m.json")
+    with pytest.raises(ValueError, match=r"^m.json: field 'params.ku': expected a number, got \[1.0, false\]$"):
+        load({"kind": "nbw", "params": {**nbw, "ku": [1.0, False]}}, source="m.json")
+
+
+def test_a_model_file_with_a_byte_order_mark_loads(d, tmp_path):
+    text = (d / "model.json").read_text(encoding="utf-8")
+    (tmp_path / "bom.json").write_text(text, encoding="utf-8-sig")
+    assert (tmp_path / "bom.json").read_bytes()[:3] == b"\xef\xbb\xbf"
+    assert fonbw.load_model(tmp_path / "bom.json").to_dict() == fonbw.load_model(d / "model.json").to_dict()
+
+
+def test_a_model_that_diverges_on_the_input_is_refused_and_nothing_written(d, tmp_path, capsys):
+    m = json.loads((d / "model.json").read_text(encoding="utf-8"))
+    m["params"]["rho"] = 1e300
+    (tmp_path / "wild.json").write_text(json.dumps(m), encoding="utf-8")
+    out = tmp_path / "y.csv"
+    assert main(["simulate", str(tmp_path / "wild.json"), str(d / "input.csv"), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"wild.json: the model's output on {d / 'input.csv'} reaches -4.84e+242 µm at sample 1 " in err
+    assert "RuntimeWarning" not in err and not out.exists()
+    assert main(["validate", str(tmp_path / "wild.json"), str(d / "r0.csv"), "--json"]) == 2
+    cap = capsys.readouterr()
+    assert "output on" in cap.err and " at sample 1 " in cap.err and "RuntimeWarning" not in cap.err
+    assert cap.out == ""
 
 
 def test_a_column_given_to_two_quantities_is_refused():
@@ -223,3 +250,16 @@ def test_a_column_given_to_two_quantities_is_refused():
         parse_columns("t=time,u=volts,y=volts")
     with pytest.raises(ValueError, match="^--columns: u is given twice$"):
         parse_columns("t=1,u=2,U=3")
+
+
+def test_a_diagnosis_budget_too_small_to_search_is_refused_up_front(d, tmp_path, capsys):
+    out = tmp_path / "g.json"
+    args = ["diagnose", "--train", str(d / "r0.csv"), "--validate", str(d / "r1.csv"), "--json", str(out)]
+    assert main(args + ["--budget", "30"]) == 2
+    err = capsys.readouterr().err
+    # 18 evaluations, a fifth of them the polish, hold no population of 16
+    assert "a budget of 30 evaluations leaves each candidate's global search 18 evaluations" in err
+    assert "give at least 31 (default 1000)" in err and not out.exists()
+    from fonbw.gap.attribute import Diagnosis
+    with pytest.raises(ValueError, match="global_evals=18 leaves each candidate.s global search 18 evaluations"):
+        Diagnosis([], [], budget=80, global_evals=18)

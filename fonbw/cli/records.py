@@ -12,8 +12,8 @@ from __future__ import annotations
 import os
 import sys
 
-__all__ = ["CLIError", "add_record_arguments", "read_records", "load_model", "out_path", "CSV_FORMAT",
-           "say"]
+__all__ = ["CLIError", "add_record_arguments", "read_records", "load_model", "out_path", "finite_output",
+           "CSV_FORMAT", "say"]
 
 #: What a record file looks like; shown in the help of every command that reads one.
 CSV_FORMAT = (
@@ -143,6 +143,28 @@ def load_model(path):
     from ..hysteresis import load_model as _load
 
     return _load(path)
+
+
+def finite_output(y, model, rec):
+    """Refuse (:class:`CLIError`) a model output `y` [µm] on the record `rec`
+    that is not finite or beyond :data:`OUTPUT_MAX`: the model file `model`
+    diverges on that input, and a file of NaN or an RMS of inf with exit
+    code 0 would pass for a result."""
+    import numpy as np
+
+    y = np.asarray(y, dtype=float)
+    with np.errstate(invalid="ignore"):
+        bad = ~(np.abs(y) <= OUTPUT_MAX)
+    if bad.any():
+        k = int(np.argmax(bad))
+        what = "is not finite" if not np.isfinite(y[k]) else f"reaches {y[k]:.3g} µm"
+        raise CLIError(f"{model}: the model's output on {rec.path} {what} at sample {k} "
+                       f"(t = {rec.t[k]:.6g} s): it diverges on this input; check its parameters")
+
+
+#: Largest model output [µm] the commands write or score: a kilometre, far past any
+#: stage, and far below where squaring it for an RMS overflows.
+OUTPUT_MAX = 1e9
 
 
 def _same_file(a, b):

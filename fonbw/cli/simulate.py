@@ -5,7 +5,7 @@ OUT.csv with columns t [s], u [V] and y [µm], the model's displacement.
 """
 from __future__ import annotations
 
-from .records import add_record_arguments, load_model, out_path, read_records
+from .records import add_record_arguments, finite_output, load_model, out_path, read_records
 
 
 def add_arguments(p) -> None:
@@ -20,6 +20,8 @@ def add_arguments(p) -> None:
 
 
 def run(ns) -> None:
+    import numpy as np
+
     from ..hysteresis import model_from_dict
     from ..io import write_csv
     from ..objective import simulate_record
@@ -31,6 +33,8 @@ def run(ns) -> None:
         d["params"]["memory"] = ns.memory
         m = model_from_dict(d, source=ns.model)
     (rec,) = read_records([ns.input], ns, need=("u",))
-    y = simulate_record(m, rec.u, rec.dt)  # from the model's recorded start
+    with np.errstate(all="ignore"):  # a model that diverges is refused below, once
+        y = simulate_record(m, rec.u, rec.dt)  # from the model's recorded start
+    finite_output(y, ns.model, rec)
     write_csv(out, {"t": rec.t, "u": rec.u, "y": y})
     print(f"wrote {ns.output}: {len(y)} samples at dt = {rec.dt:.6g} s, y in [{y.min():.4g}, {y.max():.4g}] µm")

@@ -25,7 +25,7 @@ import json
 
 from ..io import jsonable
 from ..start import start_state
-from .records import CLIError, add_record_arguments, load_model, out_path, read_records
+from .records import CLIError, add_record_arguments, finite_output, load_model, out_path, read_records
 
 __all__ = ["add_arguments", "run"]
 
@@ -60,6 +60,8 @@ def _chain(prev, y0, rec):
 
 def _rows(ns, m):
     """One result row per record (and the records, for the plot)."""
+    import numpy as np
+
     from ..objective import score, stage_rest
 
     if ns.history and len(ns.data) != 1:
@@ -81,8 +83,9 @@ def _rows(ns, m):
         if b >= r.n - 8:
             raise CLIError(f"{r.path}: {st.reason}, and the burn-in ({b} samples) leaves too few to score; "
                            "pass the record before it with --history")
-        met = score(m, r, b, hist, hb, rest=rest)
-        met.pop("yhat")
+        with np.errstate(all="ignore"):  # a model that diverges is refused below, once
+            met = score(m, r, b, hist, hb, rest=rest)
+        finite_output(met.pop("yhat"), ns.model, r)
         rows.append({"file": r.path, "samples": int(r.n - b), **met, "at_rest": bool(st.at_rest),
                      "start": st.reason, "burn_in_samples": b, "burn_in_s": round(b * r.dt, 9),
                      "history": ns.history, "history_burn_in_s": round(hb * r.dt, 9) if hist is not None else None})

@@ -105,6 +105,9 @@ from .workers import Pool, default_workers
 #: against 0.998 after 1000, and a delay was named for the rest.
 GLOBAL_SHARE = 0.6
 
+#: jDE population of a candidate's global search on the FONBW nominal.
+CANDIDATE_POPSIZE = 16
+
 __all__ = ["diagnose", "Diagnosis"]
 
 
@@ -214,6 +217,7 @@ class Diagnosis(NominalStage, GreedySteps):
         self.pool = None
         self.global_evals = int(round(GLOBAL_SHARE * budget) if global_evals is None else global_evals)
         self.global_evals_outer = int(budget if global_evals is None else global_evals)
+        _check_budget(budget, global_evals, min(self.global_evals, self.global_evals_outer))
         self.max_effects, self.min_gap_closed = max_effects, min_gap_closed
         self.floor_tol, self.tie_margin = floor_tol, tie_margin
         self.train = _as_records(train_records, "training")
@@ -354,7 +358,7 @@ class Diagnosis(NominalStage, GreedySteps):
         return {"core": "fonbw", "fitter": self.fitter, "fitter_c": self.fitter_c, "base": self.base,
                 "mse": self.mse0, "pred": self.p0_va, "yref_tr": self.yref_tr, "yref_c": self.yref_c,
                 "yref_va": self.yref_va, "global_evals": self.global_evals,
-                "global_evals_outer": self.global_evals_outer, "popsize": 16,
+                "global_evals_outer": self.global_evals_outer, "popsize": CANDIDATE_POPSIZE,
                 "excess": self.excess0}
 
     def reference_att(self):
@@ -464,6 +468,24 @@ class Diagnosis(NominalStage, GreedySteps):
         # (a copy made this way, deepcopy included, judges nothing again:
         # fonbw.gap.hidden)
         return {**self.__dict__, "pool": None, "open_step": None}
+
+
+def _check_budget(budget, global_evals, evals):
+    """Refuse, before any work, a budget whose candidates' global searches
+    (`evals` evaluations each, a fifth of them its polish) hold less than one
+    population: the first search would fail only after the nominal's."""
+    def enough(g):
+        return g - g // 5 >= CANDIDATE_POPSIZE
+
+    if enough(evals):
+        return
+    if global_evals is None:
+        least = next(b for b in range(1, 10 ** 6) if enough(int(round(GLOBAL_SHARE * b))))
+        given, fix = f"a budget of {budget} evaluations", f"give at least {least} (default 1000)"
+    else:
+        given, fix = f"global_evals={global_evals}", f"give at least {CANDIDATE_POPSIZE * 5 // 4}"
+    raise ValueError(f"diagnose: {given} leaves each candidate's global search {evals} evaluations, "
+                     f"less than one population of {CANDIDATE_POPSIZE} and its polish; {fix}")
 
 
 def _as_records(recs, what):

@@ -25,6 +25,12 @@ def model_from_dict(d: dict, source: str = "<dict>"):
         raise ValueError(f"{source}: field 'params' must be an object")
     cls = {"fonbw": FONBW, "nbw": NBW, "cbw": CBW, "zhu": Zhu2016}[kind]
     meta = _meta(d, source)
+    # JSON's true and false would pass for 1 and 0 (Python's bool is an int)
+    flags = [k for k, v in params.items()
+             if isinstance(v, bool) or (isinstance(v, list) and any(isinstance(x, bool) for x in v))]
+    if flags:
+        k = flags[0]
+        raise ValueError(f"{source}: field 'params.{k}': expected a number, got {json.dumps(params[k])}")
     try:
         m = cls(**params)
         m.meta = meta
@@ -102,7 +108,8 @@ def load_model(path):
     """Load a model saved with :meth:`save` (any kind)."""
     path = os.fspath(path)
     try:
-        with open(path, encoding="utf-8") as fh:
+        # utf-8-sig: a file saved by an editor that writes a byte-order mark is read as the CSVs are
+        with open(path, encoding="utf-8-sig") as fh:
             d = json.load(fh)
     except OSError as exc:
         raise ValueError(f"{path}: cannot open: {exc.strerror or exc}") from None
