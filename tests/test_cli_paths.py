@@ -1,7 +1,9 @@
 """Where the command line writes, and the inputs it refuses before any work:
 outputs that would replace an input (named relatively or through a link),
 unusable output paths, a drive that never moves, every candidate diverging,
-bad provenance fields and parameter names in a model file, a record whose
+bad provenance fields, parameter names and true/false values in a model
+file (and one with a byte-order mark, which loads), a model that diverges
+on the input, a diagnosis budget too small to search, a record whose
 output never moves in strict JSON, and a held-out check that cannot run or
 is cut short by Ctrl-C once the model is written."""
 import json
