@@ -39,9 +39,11 @@ def add_arguments(parser) -> None:
 def run(ns) -> None:
     """Run ``fonbw cosim`` from parsed arguments; raises CosimError (after
     writing the outputs) if the run stopped early, ValueError on bad arguments."""
-    from ..io import atomic_open, write_csv
+    import dataclasses
+
+    from ..io import atomic_open, jsonable, write_csv
     from ..loop import CosimError, run_cosim
-    from .records import out_path
+    from .records import first_wild, out_path
 
     # checked before the run, which can take minutes
     reads = [ns.model, ns.truth]
@@ -52,9 +54,15 @@ def run(ns) -> None:
     res = run_cosim(ns.scenario, ns.mode, ns.master, T=ns.T, dt=ns.dt, plant=ns.plant,
                     models={"compensator": ns.model, "hysteresis": ns.truth},
                     bandwidth_hz=ns.bandwidth, fmu_dir=ns.fmu_dir, native=ns.native)
+    k = None if res.error else first_wild(res.y)
+    if k is not None:  # said in the outputs too, as a stop
+        res = dataclasses.replace(res, error=f"the stage output is not finite or beyond any stage from "
+                                  f"t = {res.t[k]:.6g} s (step {k}): a model diverges; check the parameters "
+                                  "of --model and --truth")
     if ns.json_out:
         with atomic_open(ns.json_out, "w", encoding="utf-8") as fh:
-            json.dump(res.summary(), fh, indent=1, default=str)
+            # strict JSON: a figure of a loop that diverged is null
+            json.dump(jsonable(res.summary(), strict=True), fh, indent=1, default=str, allow_nan=False)
     if ns.csv_out:
         write_csv(ns.csv_out, {"t": res.t, "r": res.r, "u": res.u, "y": res.y, "e": res.e})
     tag = " native" if ns.native and ns.master != "reference" else ""

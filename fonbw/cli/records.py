@@ -13,7 +13,7 @@ import os
 import sys
 
 __all__ = ["CLIError", "add_record_arguments", "read_records", "load_model", "out_path", "finite_output",
-           "CSV_FORMAT", "say"]
+           "first_wild", "OUTPUT_MAX", "CSV_FORMAT", "say"]
 
 #: What a record file looks like; shown in the help of every command that reads one.
 CSV_FORMAT = (
@@ -145,26 +145,33 @@ def load_model(path):
     return _load(path)
 
 
-def finite_output(y, model, rec):
-    """Refuse (:class:`CLIError`) a model output `y` [µm] on the record `rec`
-    that is not finite or beyond :data:`OUTPUT_MAX`: the model file `model`
-    diverges on that input, and a file of NaN or an RMS of inf with exit
-    code 0 would pass for a result."""
-    import numpy as np
-
-    y = np.asarray(y, dtype=float)
-    with np.errstate(invalid="ignore"):
-        bad = ~(np.abs(y) <= OUTPUT_MAX)
-    if bad.any():
-        k = int(np.argmax(bad))
-        what = "is not finite" if not np.isfinite(y[k]) else f"reaches {y[k]:.3g} µm"
-        raise CLIError(f"{model}: the model's output on {rec.path} {what} at sample {k} "
-                       f"(t = {rec.t[k]:.6g} s): it diverges on this input; check its parameters")
-
-
 #: Largest model output [µm] the commands write or score: a kilometre, far past any
 #: stage, and far below where squaring it for an RMS overflows.
 OUTPUT_MAX = 1e9
+
+
+def finite_output(y, model, path, t):
+    """Refuse (:class:`CLIError`) a model output `y` [µm] at times `t` [s] on
+    the record `path` that is not finite or beyond :data:`OUTPUT_MAX`: the
+    model file `model` diverges on that input, and a file of NaN or an RMS of
+    inf with exit code 0 would pass for a result."""
+    import numpy as np
+
+    k = first_wild(y)
+    if k is not None:
+        what = "is not finite" if not np.isfinite(y[k]) else f"reaches {y[k]:.3g} µm"
+        raise CLIError(f"{model}: the model's output on {path} {what} at sample {k} "
+                       f"(t = {t[k]:.6g} s): it diverges on this input; check its parameters")
+
+
+def first_wild(y):
+    """Index of the first sample of `y` that is not finite or beyond
+    :data:`OUTPUT_MAX` in magnitude, or None."""
+    import numpy as np
+
+    with np.errstate(invalid="ignore"):
+        bad = ~(np.abs(np.asarray(y, dtype=float)) <= OUTPUT_MAX)
+    return int(np.argmax(bad)) if bad.any() else None
 
 
 def _same_file(a, b):

@@ -35,6 +35,6 @@ def run(ns) -> None:
     (rec,) = read_records([ns.input], ns, need=("u",))
     with np.errstate(all="ignore"):  # a model that diverges is refused below, once
         y = simulate_record(m, rec.u, rec.dt)  # from the model's recorded start
-    finite_output(y, ns.model, rec)
+    finite_output(y, ns.model, rec.path, rec.t)
     write_csv(out, {"t": rec.t, "u": rec.u, "y": y})
     print(f"wrote {ns.output}: {len(y)} samples at dt = {rec.dt:.6g} s, y in [{y.min():.4g}, {y.max():.4g}] µm")

@@ -483,7 +483,7 @@ def _check_budget(budget, global_evals, evals):
         least = next(b for b in range(1, 10 ** 6) if enough(int(round(GLOBAL_SHARE * b))))
         given, fix = f"a budget of {budget} evaluations", f"give at least {least} (default 1000)"
     else:
-        given, fix = f"global_evals={global_evals}", f"give at least {CANDIDATE_POPSIZE * 5 // 4}"
+        given, fix = f"global_evals={global_evals}", f"give at least {next(g for g in range(1, 10 ** 6) if enough(g))}"
     raise ValueError(f"diagnose: {given} leaves each candidate's global search {evals} evaluations, "
                      f"less than one population of {CANDIDATE_POPSIZE} and its polish; {fix}")
 

@@ -18,7 +18,7 @@ import numpy as np
 from . import checks
 from . import selection
 from .edges import StepEdges
-from .result import jsonable
+from ..io import jsonable
 
 __all__ = ["GreedySteps", "configuration"]
 

@@ -298,9 +298,12 @@ def beyond_text(beyond):
 def on_top_of_text(st):
     """What a later greedy step's candidates were judged on top of, in words
     (an entry of ``later_steps``; the demo's report and the HTML report)."""
-    on = ", ".join(st["on_top_of"])
-    # the first step's refits, judged again with that limit cross-fitted on them
-    return on + " named beyond the training range" if st.get("beyond_training") else on
+    limit = st.get("beyond_training")
+    if not limit:
+        return ", ".join(st["on_top_of"])
+    # the first step's refits, judged again with that limit (the last) cross-fitted on them
+    before = ", ".join(st["on_top_of"][:-1])
+    return (before + " and " if before else "") + limit + " named beyond the training range"
 
 
 def outcome_text(c):

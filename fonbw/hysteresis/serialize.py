@@ -25,9 +25,10 @@ def model_from_dict(d: dict, source: str = "<dict>"):
         raise ValueError(f"{source}: field 'params' must be an object")
     cls = {"fonbw": FONBW, "nbw": NBW, "cbw": CBW, "zhu": Zhu2016}[kind]
     meta = _meta(d, source)
-    # JSON's true and false would pass for 1 and 0 (Python's bool is an int)
-    flags = [k for k, v in params.items()
-             if isinstance(v, bool) or (isinstance(v, list) and any(isinstance(x, bool) for x in v))]
+    # JSON's true and false would pass for 1 and 0 (Python's bool is an int); an
+    # unknown name or the engine's name is left to the checks that name them
+    flags = [k for k in _numbers(cls) if k in params and (isinstance(params[k], bool) or (
+        isinstance(params[k], list) and any(isinstance(x, bool) for x in params[k])))]
     if flags:
         k = flags[0]
         raise ValueError(f"{source}: field 'params.{k}': expected a number, got {json.dumps(params[k])}")
@@ -39,6 +40,14 @@ def model_from_dict(d: dict, source: str = "<dict>"):
         raise ValueError(f"{source}: field 'params': {_arguments(cls, params) or exc}") from None
     except ValueError as exc:
         raise ValueError(f"{source}: field 'params': {exc}") from None
+
+
+def _numbers(cls):
+    """Names of the numeric parameters of the model class `cls` (all but the memory engine)."""
+    import inspect
+
+    return [k for k, p in inspect.signature(cls).parameters.items()
+            if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD) and k != "memory"]
 
 
 def _arguments(cls, params):

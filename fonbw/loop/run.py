@@ -193,14 +193,17 @@ def _result(scenario, mode, master, plant, stepped, dt, config) -> CosimResult:
     n = len(tr["t"])
     sim = n * dt
     wall = stepped.wall_s
+    with np.errstate(over="ignore", invalid="ignore"):  # a loop that diverged: its RMS is inf or nan
+        rms_error = float(np.sqrt(np.mean(e * e))) if n else math.nan
+        rms_input = float(np.sqrt(np.mean(u * u))) if n else math.nan
     return CosimResult(
         scenario=scenario, mode=mode, master=master,
         plant=plant if isinstance(plant, str) else "custom",
         t=tr["t"], r=tr["r"], u=u, y=tr["y"], e=e,
         outputs={k[4:]: v for k, v in tr.items() if k.startswith("out_")},
-        rms_error=float(np.sqrt(np.mean(e * e))) if n else math.nan,
+        rms_error=rms_error,
         max_error=float(np.max(np.abs(e))) if n else math.nan,
-        rms_input=float(np.sqrt(np.mean(u * u))) if n else math.nan,
+        rms_input=rms_input,
         sim_time_s=sim, wall_s=wall, cpu_s=stepped.cpu_s, setup_s=stepped.setup_s,
         rtf=(sim / wall) if wall > 0 else math.inf,
         steps=n, error=stepped.error, diagnostics=stepped.diagnostics, config=config)
