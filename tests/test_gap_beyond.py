@@ -455,3 +455,12 @@ def test_only_a_first_step_that_named_nothing_on_the_limits_model_is_judged_agai
     d.open_step, d.accepted, d.max_effects = {"on": before, "results": [hid]}, [], 3
     hidden.judge_again(d, before, {})
     assert len(calls) == 1 and d.later_steps == []
+
+
+def test_a_step_on_top_of_a_limit_named_beyond_training_says_which_was_named_there():
+    from fonbw.gap.selection import on_top_of_text
+
+    assert on_top_of_text({"on_top_of": ["delay", "clip"], "beyond_training": "clip"}) == \
+        "delay and clip named beyond the training range"
+    assert on_top_of_text({"on_top_of": ["clip"], "beyond_training": "clip"}) == "clip named beyond the training range"
+    assert on_top_of_text({"on_top_of": ["delay", "creep"]}) == "delay, creep"
