@@ -1224,9 +1224,12 @@ def test_a_second_identification_that_diverges_is_not_taken(monkeypatch):
     d.localize_residual()
     first = d.base
     d.form_stage()
-    ((second, ok),) = taken
+    (second, ok), *after = taken
     assert not ok and second["rms"] < first["rms"]
-    assert d.fitter.model(second).params["sigma"] < 0.5 and d.base is first
+    assert d.fitter.model(second).params["sigma"] < 0.5
+    # the first stays: as it was, or with its weights solved again after the
+    # histories the reference chose (the form is material on this core)
+    assert d.base is first or (len(after) == 1 and d.base is after[0][0] and np.array_equal(d.base["x"], first["x"]))
     assert all(np.all(np.isfinite(p)) for p in d.p0_va + d.yref_tr) and d.form["gap_closed"] is not None
 
 

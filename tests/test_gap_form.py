@@ -414,6 +414,34 @@ def test_fonbw_core_starting_mid_drive_names_nothing():
 
 
 @pytest.mark.slow
+def test_mid_drive_histories_of_an_out_of_class_core_are_chosen_again_with_the_reference():
+    # a Preisach core with a training and a validation record cut mid-drive: the
+    # FONBW's best histories explain their burn-ins to 0.245 and 0.218 µm,
+    # ten times the sensor noise the harness drew; the reference's, once the
+    # form is material, to that noise
+    from fonbw.gap.attribute import Diagnosis
+    from fonbw.gap.workers import Pool
+
+    sc = tr.draw_scenario(20, "null", scale=0.5, family="preisach", mid_drive=1.0)
+    d = Diagnosis(sc["train"], sc["validate"], seed=1, workers=1, **FAST)
+    with Pool(1, preload=()).start() as d.pool:
+        d.fit_nominal()
+        d.localize_residual()
+        fonbw_chose = {k: v["rms_burn_in"] for k, v in d.rs.info.items()}
+        d.form_stage()
+    starts = d.rs.to_dict()
+    mid = [(k, i) for k in ("train", "validate") for i, s in enumerate(starts[k]) if not s["at_rest"]]
+    assert mid == [("train", 1), ("validate", 3)]
+    for k, i in mid:
+        s = starts[k][i]
+        assert s["chosen_with"] == "reference" and fonbw_chose[(k, i)] > 0.15
+        assert s["rms_burn_in"] < 1.25 * sc["noise_std"]
+    # both nominals are fitted after the new histories, and the form judged on them
+    assert d.form["material"] and d.form["gap_closed"] > 0.99
+    assert d.ref_info["rms_validate"] < 2 * sc["noise_std"]
+
+
+@pytest.mark.slow
 def test_pi_core_with_creep_names_the_form_and_creep():
     # the form is the loop's share (0.50 of the gap); a reference with the
     # whole record as fractional memory took the creep too (0.98, creep 0.02)

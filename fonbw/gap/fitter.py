@@ -491,11 +491,21 @@ class Fitter:
             if res.fun <= f0:
                 z = res.x
         X, TH = self.split(z, effects)
+        return self._fit_at(X, TH, effects, yrefs, nfev + 1)
+
+    def fit_at(self, x, effects, th, yrefs):
+        """The configuration at the nominal search vector `x` and effect
+        parameters `th`, only its linear weights solved (no search)."""
+        X = np.asarray(x, dtype=float)[None, :]
+        TH = [np.asarray(t, dtype=float)[None, :] for t in th]
+        return self._fit_at(X, TH, effects, yrefs, 1)
+
+    def _fit_at(self, X, TH, effects, yrefs, nfev):
         A = self.design(self.records, X, effects, TH, yrefs)[0]
         beta, r = self.fit_linear(self.rows(A), self.y, self.outer(effects, TH, 0), nonneg=self.nonneg(effects))
         return {"x": X[0], "th": [t[0] for t in TH], "beta": beta,
                 "rms": math.sqrt(float(np.mean(r * r))) if beta is not None else math.inf,
-                "nfev": nfev + 1}
+                "nfev": nfev}
 
     def predict(self, records, fit, effects, yrefs):
         """Outputs [µm] of a fitted configuration on `records` (list of arrays);

@@ -82,10 +82,11 @@ class RecordStarts:
             skips.append(0 if h is None else h.size + b)
         return recs, skips
 
-    def estimate(self, simulate):
+    def estimate(self, simulate, by="fonbw"):
         """Choose each mid-drive record's history with the model `simulate`
-        (``simulate(u)`` -> output [µm] from rest). Returns the kinds
-        ("train", "validate") in which a record's history changed (empty: none)."""
+        (``simulate(u)`` -> output [µm] from rest), the nominal named `by`
+        ("fonbw" or "reference"). Returns the kinds ("train", "validate") in
+        which a record's history changed (empty: none)."""
         self.info, changed = {}, set()
         for kind in KINDS:
             for i, (r, s) in enumerate(zip(self.raw[kind], self.starts[kind])):
@@ -96,12 +97,14 @@ class RecordStarts:
                 if old is None or not np.array_equal(old, h):
                     changed.add(kind)
                 self.history[kind][i] = h
-                self.info[(kind, i)] = {"history": text, "rms_burn_in": math.sqrt(e) if math.isfinite(e) else None}
+                self.info[(kind, i)] = {"history": text, "rms_burn_in": math.sqrt(e) if math.isfinite(e) else None,
+                                        "chosen_with": by}
         return changed
 
     def to_dict(self):
-        """Per-record start states, with ``history`` and ``rms_burn_in`` [µm]
-        for each record that starts mid-drive."""
+        """Per-record start states, with ``history``, ``rms_burn_in`` [µm]
+        and ``chosen_with`` (the nominal that chose the history: "fonbw" or
+        "reference") for each record that starts mid-drive."""
         return {k: [{**s.to_dict(), **self.info.get((k, i), {})} for i, s in enumerate(self.starts[k])]
                 for k in KINDS}
 
