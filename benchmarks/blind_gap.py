@@ -291,17 +291,18 @@ def run(n, seed0, out, budget, only=None, options=None, cache_path=None, schedul
         _store(row, out, cache, cache_path)
 
 
-def _timing(seed, budget, family=None):
+def _timing(seed, budget, family=None, mid_drive=0.0):
     from fonbw.gap import diagnose
     from gap_truth import draw_scenario
 
-    sc = draw_scenario(seed, "single", scale=1.5, family=family)
+    sc = draw_scenario(seed, "single", scale=1.5, family=family, mid_drive=mid_drive)
     n = sum(len(r.u) for r in sc["train"] + sc["validate"])
     t0 = time.perf_counter()
     res = diagnose(sc["train"], sc["validate"], seed=0, budget=budget)
     wall = time.perf_counter() - t0
     print(f"{n} samples ({n * sc['train'][0].dt:.1f} s at {1 / sc['train'][0].dt:.0f} Hz), "
-          f"{sc['family']} core, injected {list(sc['injected'])}, named {res['verdict']['effects']}: wall {wall:.0f} s "
+          f"{sc['family']} core, injected {list(sc['injected'])}, named {res['verdict']['effects']}"
+          f"{'' if sc['starts_at_rest'] else ' (records starting mid-drive)'}: wall {wall:.0f} s "
           f"(nominal {res['timing']['nominal_s']:.0f} s, attribution {res['timing']['attribute_s']:.0f} s, "
           f"beyond the training range {res['timing'].get('beyond_s', 0.0):.1f} s); "
           f"load average before/after: {os.getloadavg()[0]:.1f}")
@@ -319,8 +320,9 @@ def main(argv=None):
                     help="run only the seeds that draw these kinds (null single pair outside below)")
     ap.add_argument("--family", nargs="+", choices=FAMILIES, metavar="NAME",
                     help=f"draw the core from these families only ({' '.join(FAMILIES)}; default all, uniform)")
-    ap.add_argument("--mid-drive", type=float, default=DEFAULTS["mid_drive"],
-                    help="share of scenarios with a record that starts mid-drive")
+    ap.add_argument("--mid-drive", type=float, default=None,
+                    help=f"share of scenarios with a record that starts mid-drive (default "
+                         f"{DEFAULTS['mid_drive']:g}; with --timing 0: every record from rest)")
     ap.add_argument("--scale", type=float, default=1.0, help="stretch every record's duration")
     ap.add_argument("--oracle", action="store_true",
                     help="measure the form oracle (one FONBW identification per scenario)")
@@ -335,12 +337,13 @@ def main(argv=None):
                          "the core of the first --family, default a FONBW core)")
     ns = ap.parse_args(argv)
     if ns.timing:
-        _timing(ns.seed0, ns.budget, ns.family[0] if ns.family else None)
+        _timing(ns.seed0, ns.budget, ns.family[0] if ns.family else None, ns.mid_drive or 0.0)
         return 0
     if ns.summary:
         print(summary(ns.summary))
         return 0
-    opt = {"families": ns.family, "scale": ns.scale, "mid_drive": ns.mid_drive, "oracle": ns.oracle}
+    mid = DEFAULTS["mid_drive"] if ns.mid_drive is None else ns.mid_drive
+    opt = {"families": ns.family, "scale": ns.scale, "mid_drive": mid, "oracle": ns.oracle}
     run(ns.n, ns.seed0, ns.out, ns.budget, ns.only, opt, ns.oracle_cache or ns.out + ".oracle.jsonl",
         scheduler=ns.scheduler, workers=ns.workers)
     print(summary(ns.out))

@@ -413,12 +413,10 @@ def test_fonbw_core_starting_mid_drive_names_nothing():
     assert not v["form"]["material"] and v["effects"] == []
 
 
-@pytest.mark.slow
-def test_mid_drive_histories_of_an_out_of_class_core_are_chosen_again_with_the_reference():
-    # a Preisach core with a training and a validation record cut mid-drive: the
-    # FONBW's best histories explain their burn-ins to 0.245 and 0.218 µm,
-    # ten times the sensor noise the harness drew; the reference's, once the
-    # form is material, to that noise
+@pytest.fixture(scope="module")
+def preisach_mid_drive():
+    """A Preisach core with a training and a validation record cut mid-drive
+    (no effect), its diagnosis up to the form stage."""
     from fonbw.gap.attribute import Diagnosis
     from fonbw.gap.workers import Pool
 
@@ -427,8 +425,29 @@ def test_mid_drive_histories_of_an_out_of_class_core_are_chosen_again_with_the_r
     with Pool(1, preload=()).start() as d.pool:
         d.fit_nominal()
         d.localize_residual()
-        fonbw_chose = {k: v["rms_burn_in"] for k, v in d.rs.info.items()}
+    d.pool = None
+    return sc, d
+
+
+def _form_stage(d):
+    import copy
+
+    from fonbw.gap.workers import Pool
+
+    d = copy.deepcopy(d)
+    with Pool(1, preload=()).start() as d.pool:
         d.form_stage()
+    return d
+
+
+@pytest.mark.slow
+def test_mid_drive_histories_of_an_out_of_class_core_are_chosen_again_with_the_reference(preisach_mid_drive):
+    # the FONBW's best histories explain the two burn-ins to 0.245 and 0.218
+    # µm, ten times the sensor noise the harness drew; the reference's, once
+    # the form is material, to that noise
+    sc, d0 = preisach_mid_drive
+    fonbw_chose = {k: v["rms_burn_in"] for k, v in d0.rs.info.items()}
+    d = _form_stage(d0)
     starts = d.rs.to_dict()
     mid = [(k, i) for k in ("train", "validate") for i, s in enumerate(starts[k]) if not s["at_rest"]]
     assert mid == [("train", 1), ("validate", 3)]
@@ -436,9 +455,48 @@ def test_mid_drive_histories_of_an_out_of_class_core_are_chosen_again_with_the_r
         s = starts[k][i]
         assert s["chosen_with"] == "reference" and fonbw_chose[(k, i)] > 0.15
         assert s["rms_burn_in"] < 1.25 * sc["noise_std"]
-    # both nominals are fitted after the new histories, and the form judged on them
-    assert d.form["material"] and d.form["gap_closed"] > 0.99
+    # both nominals fitted on the records after the new histories, the form judged on them
+    assert d.fitter.records is d.train and d.fitter_ref.records is d.train
+    assert [len(p) for p in d.p0_va] == [len(p) for p in d.pref_va] == [len(r.y) for r in d.val_s]
+    assert np.array_equal(d.base["x"], d0.base["x"]) and not np.array_equal(d.base["beta"], d0.base["beta"])
+    assert d.form["reference"] is d.ref_info and d.form["material"] and d.form["gap_closed"] > 0.99
     assert d.ref_info["rms_validate"] < 2 * sc["noise_std"]
+    assert d.timing["histories_s"] > 0 and d.timing["reference_s"] < d.timing["histories_s"] + 60
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("undo", ["diverges", "not material"])
+def test_histories_the_reference_chose_are_undone_when_the_fonbw_diverges_or_the_form_goes(
+        preisach_mid_drive, monkeypatch, undo):
+    from fonbw.gap import form as fm
+    from fonbw.gap.attribute import Diagnosis
+    from fonbw.gap.nominal import NominalDiverges
+
+    sc, d0 = preisach_mid_drive
+    if undo == "diverges":
+        real = Diagnosis.set_nominal
+
+        def set_nominal(self, fit):
+            if fit["nfev"] == 1:  # the weights solved again after the new histories
+                raise NominalDiverges("diverges on a history")
+            return real(self, fit)
+        monkeypatch.setattr(Diagnosis, "set_nominal", set_nominal)
+    else:
+        real, calls = fm.check_form, []
+
+        def check_form(d):
+            out = real(d)
+            calls.append(out)
+            return out if len(calls) == 1 else {**out, "material": False}
+        monkeypatch.setattr(fm, "check_form", check_form)
+    d = _form_stage(d0)
+    # as the FONBW's histories left it: records, nominal, floor, reference and the form's finding
+    assert all(v["chosen_with"] == "fonbw" for v in d.rs.info.values())
+    assert {k: v["rms_burn_in"] for k, v in d.rs.info.items()} == {k: v["rms_burn_in"] for k, v in d0.rs.info.items()}
+    assert [len(r.u) for r in d.train] == [len(r.u) for r in d0.train] and d.fitter.records is d.train
+    assert d.base["rms"] == d0.base["rms"] and d.mse0 == d0.mse0 and d.sigma2 == d0.sigma2
+    assert d.form["material"] and d.form["reference"] is d.ref_info and d.fitter_ref.records is d.train
+    assert d.timing["histories_s"] > 0
 
 
 @pytest.mark.slow

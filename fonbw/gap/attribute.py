@@ -88,7 +88,7 @@ from .fitter import KIND, Fitter, decimate
 from .greedy import GreedySteps
 from .hidden import judge_again
 from .localize import localize, noise_floor, tones
-from .nominal import NominalStage
+from .nominal import NominalDiverges, NominalStage
 from .result import DiagnosisResult
 from .starts import RecordStarts, cut
 from .workers import Pool, default_workers
@@ -305,7 +305,8 @@ class Diagnosis(NominalStage, GreedySteps):
 
     def histories_on_reference(self):
         """Choose the mid-drive records' histories again with the reference
-        nominal, once the form is material, and fit both nominals after them.
+        nominal, once the form is material, fit both nominals after them and
+        judge the form again; sets ``form``.
 
         The histories were chosen with the FONBW nominal; when its form is
         wrong it explains a burn-in no better than any history, and the one
@@ -315,24 +316,50 @@ class Diagnosis(NominalStage, GreedySteps):
         a validation record held at 20 V after a step went from 0.20 µm
         to 0.061 µm on the reference (noise 0.021 µm). The FONBW keeps its
         nonlinear parameters and has its weights solved again on the new
-        records; the form is then judged again on them. Returns whether a
-        history changed.
+        records; the reference is fitted again. Everything is put back as it
+        was (and False returned) when no history changed, when the FONBW
+        diverges after a history the reference chose, or when the form is
+        no longer material after them. Returns whether the new histories stay.
         """
-        def simulate(u):
-            z = np.zeros(len(u))
-            return self.fitter_ref.predict([Record.from_arrays(u=u, y=z, dt=self.dt)], self.base_ref, [], [z])[0]
-
-        before = {k: v["rms_burn_in"] for k, v in self.rs.info.items()}
-        if not self.rs.report()["mid_drive"] or not self.estimate_histories(simulate=simulate):
+        if not self.rs.report()["mid_drive"]:
             return False
-        self.say("histories chosen again with the reference: burn-in rms "
-                 + ", ".join(f"{k[0]} {k[1]} {_um(before.get(k))} -> {_um(v['rms_burn_in'])}"
-                             for k, v in self.rs.info.items()))
-        zero = [np.zeros(len(r.u)) for r in self.train]
-        self.try_nominal(self.fitter.fit_at(self.base["x"], [], [], zero))
-        self.localize_residual()
-        fm.fit_reference(self)
-        return True
+        t0, first_fit_s = time.perf_counter(), self.timing.get("reference_s")
+        state, kept = dict(vars(self)), {k: self.rs.saved(k) for k in ("train", "validate")}
+        before = {k: v["rms_burn_in"] for k, v in self.rs.info.items()}
+        with self.ref_core.transient():  # each candidate history's columns are needed once
+            changed = self.estimate_histories(simulate=self._reference_simulate)
+        why = None if changed else "no history changed"
+        if changed:
+            self.say("histories chosen again with the reference: burn-in rms "
+                     + ", ".join(f"{k[0]} {k[1]} {_um(before.get(k))} -> {_um(v['rms_burn_in'])}"
+                                 for k, v in self.rs.info.items()))
+            try:
+                self.set_nominal(self.fitter.fit_at(state["base"]["x"], [], [],
+                                                    [np.zeros(len(r.u)) for r in self.train]))
+            except NominalDiverges as e:
+                why = f"the FONBW diverges after them ({e})"
+        if why is None:
+            self.localize_residual()
+            fm.fit_reference(self)
+            form = fm.check_form(self)
+            why = None if form["material"] else "the form is not material after them"
+        if why is not None:
+            vars(self).clear()
+            vars(self).update(state)
+            for k, v in kept.items():
+                self.rs.restore(k, v)
+            self.say(f"histories of the FONBW kept: {why}")
+        else:
+            self.form = form
+        # the stage whole (the reference's second fit included); reference_s stays the first fit's
+        self.timing["reference_s"] = first_fit_s
+        self.timing["histories_s"] = time.perf_counter() - t0
+        return why is None
+
+    def _reference_simulate(self, u):
+        """Output [µm] of the reference nominal on input `u` [V] from rest."""
+        z = np.zeros(len(u))
+        return self.fitter_ref.predict([Record.from_arrays(u=u, y=z, dt=self.dt)], self.base_ref, [], [z])[0]
 
     def use_space(self, space):
         """Fit the FONBW core in `space` from now on (the full-rate and the
@@ -383,8 +410,8 @@ class Diagnosis(NominalStage, GreedySteps):
         if not self.at_floor and fm.second_chance(self):
             self.localize_residual()
         self.form = fm.check_form(self)
-        if self.form["material"] and self.histories_on_reference():
-            self.form = fm.check_form(self)
+        if self.form["material"]:
+            self.histories_on_reference()
         self.att = self.fonbw_att()
         self.say(f"form: gap closed {self.form['gap_closed']}, "
                  f"{'material' if self.form['material'] else 'not material'}")

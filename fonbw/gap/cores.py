@@ -26,6 +26,8 @@ and the output nonlinearity are appended).
 """
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 
 from .. import hysteresis as hyst
@@ -140,6 +142,18 @@ class ReferenceCore:
     def __getstate__(self):
         # keyed by the ids of this process's arrays: another process starts it empty
         return {**self.__dict__, "_cache": {}}
+
+    @contextlib.contextmanager
+    def transient(self):
+        """Inside the block, columns of new inputs are cached only until its
+        end: inputs seen once (candidate histories) would otherwise hold
+        their columns, and their inputs, for the rest of the diagnosis."""
+        known = set(self._cache)
+        try:
+            yield self
+        finally:
+            for key in set(self._cache) - known:
+                del self._cache[key]
 
     @property
     def n_params(self) -> int:

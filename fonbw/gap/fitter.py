@@ -496,8 +496,8 @@ class Fitter:
     def fit_at(self, x, effects, th, yrefs):
         """The configuration at the nominal search vector `x` and effect
         parameters `th`, only its linear weights solved (no search)."""
-        X = np.asarray(x, dtype=float)[None, :]
-        TH = [np.asarray(t, dtype=float)[None, :] for t in th]
+        X = np.array(x, dtype=float)[None, :]  # a copy: the fit is a new configuration
+        TH = [np.array(t, dtype=float)[None, :] for t in th]
         return self._fit_at(X, TH, effects, yrefs, 1)
 
     def _fit_at(self, X, TH, effects, yrefs, nfev):

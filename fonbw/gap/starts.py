@@ -40,8 +40,9 @@ class RecordStarts:
     history : dict
         Input [V] run before each record (None: it starts at rest), by kind.
     info : dict
-        (kind, index) -> {"history": what it is, "rms_burn_in": the model's
-        RMS error over the burn-in after it [µm]}, once estimated.
+        (kind, index) -> {"history": what it is, "rms_burn_in": the RMS error
+        [µm] over the burn-in after it of the nominal that chose it,
+        "chosen_with": that nominal, "fonbw" or "reference"}, once estimated.
     """
 
     def __init__(self, train, validate):
