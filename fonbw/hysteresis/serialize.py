@@ -42,23 +42,25 @@ def model_from_dict(d: dict, source: str = "<dict>"):
         raise ValueError(f"{source}: field 'params': {exc}") from None
 
 
-def _numbers(cls):
-    """Names of the numeric parameters of the model class `cls` (all but the memory engine)."""
+def _parameters(cls):
+    """The named parameters of the model class `cls` (inspect.Parameter by name)."""
     import inspect
 
-    return [k for k, p in inspect.signature(cls).parameters.items()
-            if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD) and k != "memory"]
+    return {k: p for k, p in inspect.signature(cls).parameters.items()
+            if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD)}
+
+
+def _numbers(cls):
+    """Names of the numeric parameters of the model class `cls` (all but the memory engine)."""
+    return [k for k in _parameters(cls) if k != "memory"]
 
 
 def _arguments(cls, params):
     """What is wrong with the names in `params` for the model class `cls`, in
     the file's words (missing or unknown parameters), or None."""
-    import inspect
-
-    sig = inspect.signature(cls)
-    names = [k for k, p in sig.parameters.items() if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD)]
-    missing = [k for k, p in sig.parameters.items()
-               if k in names and p.default is inspect.Parameter.empty and k not in params]
+    sig = _parameters(cls)
+    names = list(sig)
+    missing = [k for k, p in sig.items() if p.default is p.empty and k not in params]
     unknown = [k for k in params if k not in names]
     parts = ([f"missing parameter(s) {', '.join(missing)}"] if missing else []) + \
         ([f"unknown parameter(s) {', '.join(map(str, unknown))} (a {cls.kind} model takes {', '.join(names)})"]
