@@ -238,7 +238,8 @@ def check_invertible(model, dt, states=None, *, margin=0.0, dt_states=None):
         msg = (f"not invertible at dt = {dt:g} s: the one-step slope u_k → H_k falls to "
                f"{smin:.4g} µm/V (≤ {margin:g} at {100 * frac:.1f} % of the visited states); "
                "the causal inverse then has no root or chatters. Identify with "
-               "for_compensation=dt, or use compensate(..., preview=True) for a known trajectory")
+               "for_compensation=dt (fonbw identify --for-compensation DT), or use compensate(..., "
+               "preview=True) (fonbw compensate --preview) for a known trajectory")
     return ok, smin, msg
 
 

@@ -180,7 +180,8 @@ def _suggest(names, wanted) -> str:
                 break
     if len(found) == len(wanted):
         return "map them with --columns " + ",".join(f"{k}={v}" for k, v in found.items())
-    return "map them with --columns t=COL,u=COL,y=COL (COL a header name or a 1-based position)"
+    return ("map them with --columns " + ",".join(f"{k}=COL" for k in wanted)
+            + " (COL a header name or a 1-based position)")
 
 
 def resolve_columns(path, first, delimiter, need, columns, header, DataError):

@@ -5,7 +5,8 @@ bad provenance fields, parameter names and true/false values in a model
 file (and one with a byte-order mark, which loads), a model that diverges
 on the input, a diagnosis budget too small to search, a record whose
 output never moves in strict JSON, and a held-out check that cannot run or
-is cut short by Ctrl-C once the model is written."""
+is cut short by Ctrl-C once the model is written; a trajectory without its
+column and plant files that are not one (each named in the refusal)."""
 import json
 import re
 
@@ -242,6 +243,67 @@ def test_a_model_that_diverges_on_the_input_is_refused_and_nothing_written(d, tm
     cap = capsys.readouterr()
     assert "output on" in cap.err and " at sample 1 " in cap.err and "RuntimeWarning" not in cap.err
     assert cap.out == ""
+    # run after a history, the output is wild from the record's first sample: the history is named
+    rec = np.loadtxt(d / "r1.csv", delimiter=",", skiprows=1)
+    write_csv(tmp_path / "next.csv", {"t": rec[:, 0] + 0.8, "u": rec[:, 1], "y": rec[:, 2]})
+    assert main(["validate", str(tmp_path / "wild.json"), str(tmp_path / "next.csv"),
+                 "--history", str(d / "r0.csv")]) == 2
+    err = capsys.readouterr().err
+    assert f"is not finite from the first sample of {tmp_path / 'next.csv'} (t = 0.8 s), run after the history " \
+           f"{d / 'r0.csv'}: it diverges on the history's input" in err
+    # compensate says once, in its own words, what numpy warns of at every operation
+    write_csv(tmp_path / "hd.csv", {"t": rec[:, 0], "Hd": rec[:, 2]})
+    assert main(["compensate", str(tmp_path / "wild.json"), str(tmp_path / "hd.csv"), "-o",
+                 str(tmp_path / "u.csv")]) == 2
+    lines = capsys.readouterr().err.splitlines()
+    fp = [ln for ln in lines if "encountered in" in ln]
+    assert len(fp) == 1 and fp[0].startswith("fonbw compensate: warning: the model's output overflows or is not "
+                                             "a number on this trajectory (numpy: overflow encountered in ")
+    assert re.search(r"×\d+", fp[0]) and len(lines) == len(set(lines))
+    assert any("fonbw compensate --preview" in ln for ln in lines)
+    assert lines[-1].startswith("fonbw compensate: error: ") and "cannot track the trajectory" in lines[-1]
+
+
+def test_a_trajectory_without_its_column_is_told_how_to_map_it(d, tmp_path, capsys):
+    rec = np.loadtxt(d / "r1.csv", delimiter=",", skiprows=1)
+    write_csv(tmp_path / "traj.csv", {"t": rec[:, 0], "z": rec[:, 2]})
+    assert main(["compensate", str(d / "model.json"), str(tmp_path / "traj.csv"), "-o",
+                 str(tmp_path / "u.csv")]) == 2
+    assert capsys.readouterr().err.strip().endswith(
+        "missing column(s) 'Hd'; header has 't', 'z'; map them with --columns Hd=COL (COL a header name "
+        "or a 1-based position)")
+    # mapped as told, the column is read (this model cannot track it causally: exit 2 after writing)
+    main(["compensate", str(d / "model.json"), str(tmp_path / "traj.csv"), "-o", str(tmp_path / "u.csv"),
+          "--columns", "Hd=z"])
+    assert capsys.readouterr().out.startswith(f"wrote {tmp_path / 'u.csv'}: 800 samples")
+
+
+def test_a_plant_file_is_read_or_refused_by_name(tmp_path, capsys):
+    from fonbw.fmu.build import BuildError, plant_resource
+
+    plant = {"kind": "linear_plant", "A": [[-100.0]], "B": [[100.0]], "C": [[0.5]], "D": [[0.5]], "sys_dt": None}
+    p = tmp_path / "p.json"
+    p.write_text(json.dumps(plant), encoding="utf-8-sig")
+    res = plant_resource(p)
+    # no input or output named: the plant FMU's own names; the BOM read past
+    assert res["A"] == [[-100.0]] and res["input"]["name"] == "x" and res["output"]["name"] == "y"
+    bad = [([1, 2], "expected a JSON object (kind linear_plant), got list"),
+           ({**plant, "A": [[1.0, 2.0]]}, "fields A, B, C, D, sys_dt: not a state-space system "
+                                          "(state-space matrix A must be a square matrix)"),
+           ({**plant, "input": "v"}, "field 'input': expected an object with a \"name\""),
+           ({**plant, "output": {"unit": "um"}}, "field 'output': expected an object with a \"name\""),
+           ({**plant, "B": [[1.0, 2.0]], "D": [[0.0, 0.0]]}, "the plant FMU is single-input single-output")]
+    for doc, why in bad:
+        p.write_text(json.dumps(doc), encoding="utf-8")
+        with pytest.raises(BuildError) as exc:
+            plant_resource(p)
+        assert str(exc.value).startswith(f"{p}: {why}"), str(exc.value)
+    out = tmp_path / "fmus"
+    p.write_text("[1, 2]", encoding="utf-8")
+    assert main(["build-fmu", "--plant", str(p), "--only", "plant", "-o", str(out)]) == 2
+    assert capsys.readouterr().err == f"fonbw build-fmu: error: {p}: expected a JSON object (kind linear_plant), " \
+                                      "got list\n"
+    assert not out.exists()
 
 
 def test_a_column_given_to_two_quantities_is_refused():

@@ -55,8 +55,8 @@ def run(ns) -> None:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", RuntimeWarning)
         res = compensate(model, rec.hd, rec.dt, limits=(lo, hi), explicit=ns.explicit, preview=ns.preview)
-    for w in caught:
-        print(f"fonbw compensate: warning: {' '.join(str(w.message).split())}", file=sys.stderr)
+    for line in _warning_lines(caught):
+        print(f"fonbw compensate: warning: {line}", file=sys.stderr)
     write_csv(out, output_columns(model, res, rec.t))
     c = res.counts
     print(f"wrote {ns.output}: {len(res.u)} samples, u in [{res.u.min():.4g}, {res.u.max():.4g}] V "
@@ -65,3 +65,23 @@ def run(ns) -> None:
     if res.tracking_impossible:
         raise CLIError(f"{ns.trajectory}: cannot track the trajectory: {res.tracking_impossible} "
                        f"(the input written to {ns.output} is the closest the model allows)")
+
+
+def _warning_lines(caught):
+    """The warnings `caught` as lines to print, numpy's floating-point ones
+    (a model that overflows on the trajectory raises one per operation and
+    sample block) folded into one line that says what they mean."""
+    import re
+
+    lines, fp = [], {}
+    for w in caught:
+        text = " ".join(str(w.message).split())
+        if re.fullmatch(r"(overflow|invalid value|divide by zero|underflow) encountered in \w+", text):
+            fp[text] = fp.get(text, 0) + 1
+        elif text not in lines:
+            lines.append(text)
+    if fp:
+        seen = ", ".join(f"{k} ×{n}" if n > 1 else k for k, n in fp.items())
+        lines.insert(0, f"the model's output overflows or is not a number on this trajectory (numpy: {seen}); "
+                        "check its parameters")
+    return lines

@@ -281,7 +281,8 @@ class CompensationResult:
         if c["not_converged"]:
             parts.append(f"{c['not_converged']} samples without a root of H(u) = H_d"
                          + ("" if self.preview else " (model not invertible at this step? "
-                            "see fonbw.invertibility.check_invertible; preview=True helps)"))
+                            "see fonbw.invertibility.check_invertible; preview=True, "
+                            "fonbw compensate --preview, helps)"))
         return "; ".join(parts) or None
 
     def summary(self) -> str:

@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import getpass
 import hashlib
+import inspect
 import json
 import os
 import shutil
@@ -161,7 +162,10 @@ def plant_resource(path, dt: float | None = None) -> dict:
     import control
 
     try:
-        d = json.loads(Path(path).read_text(encoding="utf-8"))
+        # utf-8-sig: a byte-order mark from an editor is read past, as in a model file
+        d = json.loads(Path(path).read_text(encoding="utf-8-sig"))
+        if not isinstance(d, dict):
+            raise BuildError(f"{path}: expected a JSON object (kind linear_plant), got {type(d).__name__}")
         if d.get("kind") != "linear_plant":
             raise BuildError(f"{path}: expected kind 'linear_plant', got {d.get('kind')!r}")
         mats = [d[k] for k in "ABCD"]
@@ -169,12 +173,31 @@ def plant_resource(path, dt: float | None = None) -> dict:
         raise BuildError(f"{path}: missing field {e}") from e
     except json.JSONDecodeError as e:
         raise BuildError(f"{path}: not JSON ({e})") from e
-    sys_ = control.ss(*mats, d["sys_dt"]) if d.get("sys_dt") else control.ss(*mats)
+    except (OSError, UnicodeDecodeError) as e:
+        raise BuildError(f"{path}: cannot read: {getattr(e, 'strerror', None) or e}") from e
+    try:
+        sys_ = control.ss(*mats, d["sys_dt"]) if d.get("sys_dt") else control.ss(*mats)
+    except (ValueError, TypeError) as e:
+        # python-control's own message names the matrix, not the file
+        raise BuildError(f"{path}: fields A, B, C, D, sys_dt: not a state-space system ({e})") from e
 
-    def io(s):
+    def io(key, default):
+        s = d.get(key)
+        if s is None:
+            return default
+        if not isinstance(s, dict) or not isinstance(s.get("name"), str) or not s["name"]:
+            raise BuildError(f"{path}: field {key!r}: expected an object with a \"name\" (and \"unit\", "
+                             f"\"description\"), got {json.dumps(s)}")
         return s["name"], s.get("unit"), s.get("description", "")
 
-    res = statespace_resource(sys_, io(d["input"]), io(d["output"]), dt if dt is not None else d.get("dt"))
+    defaults = inspect.signature(statespace_resource).parameters
+    try:
+        res = statespace_resource(sys_, io("input", defaults["input"].default),
+                                  io("output", defaults["output"].default), dt if dt is not None else d.get("dt"))
+    except BuildError as e:
+        if str(e).startswith(f"{path}:"):
+            raise
+        raise BuildError(f"{path}: {e}") from e
     res["description"] = d.get("description", "")
     return res
 
