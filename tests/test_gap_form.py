@@ -557,12 +557,54 @@ def _loro_by_hand(Phi, D, y, lens):
         held = np.arange(edges[i], edges[i] + min(lens))
         other = np.r_[edges[1 - i]:edges[2 - i]]
         yo = y[other]
-        held = held[(y[held] >= yo.min()) & (y[held] <= yo.max())]
+        # the span less 5 ms of samples at either end (5 at 1 kHz)
+        s = np.sort(yo)
+        held = held[(y[held] >= s[5]) & (y[held] <= s[-6])]
         for k, A in enumerate((A0, A1)):
             g = np.linalg.lstsq(A[other], yo, rcond=None)[0]
             e = y[held] - A[held] @ g
             tot[k] += e @ e
     return tot[1] / tot[0]
+
+
+def test_a_held_out_record_is_scored_over_the_span_the_others_dwell_in(monkeypatch):
+    from fonbw.gap import checks
+    from fonbw.gap.cores import ReferenceCore
+    from fonbw.gap.fitter import Fitter
+    from fonbw.gap.limits import Saturation
+    from fonbw.gap.reference import ReferenceHysteresis
+
+    # a few samples past a level do not span it; 5 ms of them do
+    dt = 2e-4
+    ramp = np.linspace(0.0, 10.0, 5000)
+    assert checks._dwelt_span(np.r_[ramp, np.full(24, 15.0)], dt) == (ramp[25], ramp[-26 + 24])
+    assert checks._dwelt_span(np.r_[ramp, np.full(26, 15.0)], dt) == (ramp[25], 15.0)
+    # a stroke limit at 11 µm that one record dwells at (81 samples) and the
+    # other passes only for the 3 samples of a ring past the stop: the limit
+    # cannot be judged on what the second record sees of it
+    L, w = 11.0, 0.05
+    r0, r1 = _pi_records()
+    y1 = r1.y.copy()
+    over = y1 > L
+    y1[over] = L + w * np.tanh((y1[over] - L) / w)
+    y0 = r0.y.copy()
+    k = int(np.argmax(y0))
+    y0[k:k + 3] += [0.4, 0.6, 0.3]
+    assert over.sum() == 81 and np.sum(y0 > L) == 3
+    recs = [Record.from_arrays(u=r0.u, y=y0, dt=r0.dt, path="r0"), Record.from_arrays(u=r1.u, y=y1, dt=r1.dt, path="r1")]
+    f = Fitter(recs, core=ReferenceCore(ReferenceHysteresis(n_plays=8, rate=None).with_range(recs)))
+    zero = [np.zeros(len(r.u)) for r in recs]
+    base = f.fit_at(np.zeros(0), [], [], zero)
+    eff = [Saturation(0.0, 11.3)]
+    fit = f.fit_at(np.zeros(0), eff, [np.array([L - 0.02, 0.02])], zero)
+    assert fit["beta"][-1] == pytest.approx(-0.733, abs=0.01) and fit["rms"] < 0.7 * base["rms"]
+    out = checks.loro(f, base, fit, [], eff, zero)
+    assert out["pooled_ratio"] == pytest.approx(0.685, abs=0.01) and checks.loro_passes(out)
+    # scored up to the ring's top, the limited peak counted against a gain
+    # the first record cannot see: the limit failed
+    monkeypatch.setattr(checks, "SPAN_DWELL", 0.0)
+    out = checks.loro(f, base, fit, [], eff, zero)
+    assert out["ratios"][1] > 1.4 and not checks.loro_passes(out)
 
 
 @pytest.mark.parametrize("drift_um", [(0.3, 0.3), (0.0, 0.0), (0.3, 0.08)])
