@@ -292,12 +292,13 @@ def score(model, rec, burn_in=0, history=None, history_burn_in=0, rest=0.0) -> d
         range [µm], offset_um (fitted offset [µm] added to the model, None if
         none was fitted), start_history (what the model ran before a record
         with a burn-in, None otherwise), yhat (model output over `rec` [µm],
-        offset included).
+        offset included), yhat_history (its output over `history` [µm], no
+        offset; None without one).
     """
-    off, how = None, None
+    off, how, before = None, None, None
     if history is not None:
         full = simulate_record(model, np.concatenate([history.u, rec.u]), rec.dt, history_burn_in)
-        yhat, burn_in = full[history.n:], 0
+        yhat, burn_in, before = full[history.n:], 0, full[:history.n]
         if history_burn_in > 0:
             off = -float(np.mean((full[:history.n] - history.y)[history_burn_in:]))
     elif burn_in > 0:
@@ -312,7 +313,7 @@ def score(model, rec, burn_in=0, history=None, history_burn_in=0, rest=0.0) -> d
     rms = float(np.sqrt(np.mean(e ** 2)))
     return {"rms": rms, "rms_percent": 100.0 * rms / rng if rng > 0 else float("inf"),
             "max_abs": float(np.max(np.abs(e))), "range": rng, "offset_um": off, "start_history": how,
-            "yhat": yhat}
+            "yhat": yhat, "yhat_history": before}
 
 
 def stage_rest(model, inputs) -> float:

@@ -557,9 +557,9 @@ def _loro_by_hand(Phi, D, y, lens):
         held = np.arange(edges[i], edges[i] + min(lens))
         other = np.r_[edges[1 - i]:edges[2 - i]]
         yo = y[other]
-        # the span less 5 ms of samples at either end (5 at 1 kHz)
+        # the span where the record spends 5 ms (5 samples at 1 kHz) at or beyond
         s = np.sort(yo)
-        held = held[(y[held] >= s[5]) & (y[held] <= s[-6])]
+        held = held[(y[held] >= s[4]) & (y[held] <= s[-5])]
         for k, A in enumerate((A0, A1)):
             g = np.linalg.lstsq(A[other], yo, rcond=None)[0]
             e = y[held] - A[held] @ g
@@ -574,11 +574,14 @@ def test_a_held_out_record_is_scored_over_the_span_the_others_dwell_in(monkeypat
     from fonbw.gap.limits import Saturation
     from fonbw.gap.reference import ReferenceHysteresis
 
-    # a few samples past a level do not span it; 5 ms of them do
+    # a few samples past a level do not span it; 5 ms of them in one record do
     dt = 2e-4
     ramp = np.linspace(0.0, 10.0, 5000)
-    assert checks._dwelt_span(np.r_[ramp, np.full(24, 15.0)], dt) == (ramp[25], ramp[-26 + 24])
-    assert checks._dwelt_span(np.r_[ramp, np.full(26, 15.0)], dt) == (ramp[25], 15.0)
+    assert checks._dwelt_span([np.r_[ramp, np.full(24, 15.0)]], dt) == (ramp[24], ramp[-1])
+    assert checks._dwelt_span([np.r_[ramp, np.full(25, 15.0)]], dt) == (ramp[24], 15.0)
+    # ... not 20 in each of two records, nor a record too short to tell (its whole range)
+    assert checks._dwelt_span([np.r_[ramp, np.full(20, 15.0)], np.r_[ramp, np.full(20, 15.0)]], dt)[1] == ramp[-5]
+    assert checks._dwelt_span([ramp, np.full(49, 12.0)], dt) == (ramp[24], 12.0)
     # a stroke limit at 11 µm that one record dwells at (81 samples) and the
     # other passes only for the 3 samples of a ring past the stop: the limit
     # cannot be judged on what the second record sees of it
@@ -591,7 +594,7 @@ def test_a_held_out_record_is_scored_over_the_span_the_others_dwell_in(monkeypat
     k = int(np.argmax(y0))
     y0[k:k + 3] += [0.4, 0.6, 0.3]
     assert over.sum() == 81 and np.sum(y0 > L) == 3
-    recs = [Record.from_arrays(u=r0.u, y=y0, dt=r0.dt, path="r0"), Record.from_arrays(u=r1.u, y=y1, dt=r1.dt, path="r1")]
+    recs = [Record.from_arrays(u=r.u, y=y, dt=r.dt, path=r.path) for r, y in ((r0, y0), (r1, y1))]
     f = Fitter(recs, core=ReferenceCore(ReferenceHysteresis(n_plays=8, rate=None).with_range(recs)))
     zero = [np.zeros(len(r.u)) for r in recs]
     base = f.fit_at(np.zeros(0), [], [], zero)

@@ -12,6 +12,7 @@ stage's sensor is zeroed at rest.
 """
 from __future__ import annotations
 
+import re
 import sys
 
 from .records import CLIError, add_record_arguments, load_model, out_path, read_records
@@ -71,17 +72,16 @@ def _warning_lines(caught):
     """The warnings `caught` as lines to print, numpy's floating-point ones
     (a model that overflows on the trajectory raises one per operation and
     sample block) folded into one line that says what they mean."""
-    import re
-
     lines, fp = [], {}
     for w in caught:
         text = " ".join(str(w.message).split())
-        if re.fullmatch(r"(overflow|invalid value|divide by zero|underflow) encountered in \w+", text):
+        # numpy's own wording, also "... in scalar multiply" for scalars
+        if re.fullmatch(r"(overflow|invalid value|divide by zero|underflow) encountered in [\w ]+", text):
             fp[text] = fp.get(text, 0) + 1
         elif text not in lines:
             lines.append(text)
     if fp:
         seen = ", ".join(f"{k} ×{n}" if n > 1 else k for k, n in fp.items())
-        lines.insert(0, f"the model's output overflows or is not a number on this trajectory (numpy: {seen}); "
-                        "check its parameters")
+        lines.insert(0, f"the model's arithmetic overflowed or gave values that are not numbers on this "
+                        f"trajectory (numpy: {seen}); check its parameters")
     return lines

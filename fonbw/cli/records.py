@@ -150,21 +150,16 @@ def load_model(path):
 OUTPUT_MAX = 1e9
 
 
-def finite_output(y, model, path, t, history=None):
+def finite_output(y, model, path, t):
     """Refuse (:class:`CLIError`) a model output `y` [µm] at times `t` [s] on
     the record `path` that is not finite or beyond :data:`OUTPUT_MAX`: the
     model file `model` diverges on that input, and a file of NaN or an RMS of
-    inf with exit code 0 would pass for a result. `history`: the record the
-    model ran through first, named when the output is wild from the start."""
+    inf with exit code 0 would pass for a result."""
     import numpy as np
 
     k = first_wild(y)
     if k is not None:
         what = "is not finite" if not np.isfinite(y[k]) else f"reaches {y[k]:.3g} µm"
-        if k == 0 and history:
-            raise CLIError(f"{model}: the model's output {what} from the first sample of {path} (t = {t[k]:.6g} s), "
-                           f"run after the history {history}: it diverges on the history's input; check its "
-                           "parameters")
         raise CLIError(f"{model}: the model's output on {path} {what} at sample {k} "
                        f"(t = {t[k]:.6g} s): it diverges on this input; check its parameters")
 

@@ -85,7 +85,10 @@ def _rows(ns, m):
                            "pass the record before it with --history")
         with np.errstate(all="ignore"):  # a model that diverges is refused below, once
             met = score(m, r, b, hist, hb, rest=rest)
-        finite_output(met.pop("yhat"), ns.model, r.path, r.t, history=ns.history)
+        before = met.pop("yhat_history")
+        if before is not None:
+            finite_output(before, ns.model, hist.path, hist.t)
+        finite_output(met.pop("yhat"), ns.model, r.path, r.t)
         rows.append({"file": r.path, "samples": int(r.n - b), **met, "at_rest": bool(st.at_rest),
                      "start": st.reason, "burn_in_samples": b, "burn_in_s": round(b * r.dt, 9),
                      "history": ns.history, "history_burn_in_s": round(hb * r.dt, 9) if hist is not None else None})

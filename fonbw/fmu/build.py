@@ -29,8 +29,8 @@ from __future__ import annotations
 import argparse
 import getpass
 import hashlib
-import inspect
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -130,8 +130,12 @@ def model_resource(params, dt: float = DEFAULT_DT) -> dict:
             "limits": [float(x) for x in default_limits(model)]}
 
 
-def statespace_resource(sys_, input=("x", "um", "Plant input"),
-                        output=("y", "um", "Plant output"), dt=None) -> dict:
+#: (name, unit, description) of the plant FMU's input and output when not given.
+PLANT_INPUT = ("x", "um", "Plant input")
+PLANT_OUTPUT = ("y", "um", "Plant output")
+
+
+def statespace_resource(sys_, input=PLANT_INPUT, output=PLANT_OUTPUT, dt=None) -> dict:
     """Resource of the plant FMU from a python-control state-space (or transfer
     function) system; `input` and `output` are (name, unit, description)."""
     import control
@@ -177,29 +181,45 @@ def plant_resource(path, dt: float | None = None) -> dict:
         raise BuildError(f"{path}: cannot read: {getattr(e, 'strerror', None) or e}") from e
     try:
         sys_ = control.ss(*mats, d["sys_dt"]) if d.get("sys_dt") else control.ss(*mats)
+        if sys_.ninputs != 1 or sys_.noutputs != 1:
+            raise ValueError(f"{sys_.ninputs} input(s) and {sys_.noutputs} output(s); the plant FMU is "
+                             "single-input single-output")
+        if sys_.dt is True:
+            raise ValueError("discrete without a sampling time")
     except (ValueError, TypeError) as e:
         # python-control's own message names the matrix, not the file
         raise BuildError(f"{path}: fields A, B, C, D, sys_dt: not a state-space system ({e})") from e
 
-    def io(key, default):
-        s = d.get(key)
-        if s is None:
-            return default
-        if not isinstance(s, dict) or not isinstance(s.get("name"), str) or not s["name"]:
-            raise BuildError(f"{path}: field {key!r}: expected an object with a \"name\" (and \"unit\", "
-                             f"\"description\"), got {json.dumps(s)}")
-        return s["name"], s.get("unit"), s.get("description", "")
-
-    defaults = inspect.signature(statespace_resource).parameters
-    try:
-        res = statespace_resource(sys_, io("input", defaults["input"].default),
-                                  io("output", defaults["output"].default), dt if dt is not None else d.get("dt"))
-    except BuildError as e:
-        if str(e).startswith(f"{path}:"):
-            raise
-        raise BuildError(f"{path}: {e}") from e
-    res["description"] = d.get("description", "")
+    res = statespace_resource(sys_, _plant_port(path, d, "input", PLANT_INPUT),
+                              _plant_port(path, d, "output", PLANT_OUTPUT),
+                              dt if dt is not None else _plant_dt(path, d))
+    desc = d.get("description", "")
+    if not isinstance(desc, str):
+        raise BuildError(f"{path}: field 'description': expected text, got {json.dumps(desc)}")
+    res["description"] = desc
     return res
+
+
+def _plant_port(path, d, key, default):
+    """(name, unit, description) of a plant file's `key` ("input" or "output"); `default` when absent."""
+    s = d.get(key)
+    if s is None:
+        return default
+    ok = isinstance(s, dict) and isinstance(s.get("name"), str) and s["name"]
+    if ok and all(s.get(k) is None or isinstance(s[k], str) for k in ("unit", "description")):
+        return s["name"], s.get("unit"), s.get("description", "")
+    raise BuildError(f"{path}: field {key!r}: expected an object with a \"name\" and optionally a \"unit\" "
+                     f"and a \"description\", all text, got {json.dumps(s)}")
+
+
+def _plant_dt(path, d):
+    """The plant file's FMU step "dt" [s], or None when absent."""
+    v = d.get("dt")
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+        raise BuildError(f"{path}: field 'dt': expected a positive number of seconds, got {json.dumps(v)}")
+    return float(v)
 
 
 # ---------------------------------------------------------------------------

@@ -81,10 +81,10 @@ BIC_EVIDENCE = -10.0
 #: injected accounted for 0.51. On a reference core the nominal has nothing
 #: to move, so at the first step the share is 1.
 OWN_SHARE = 0.5
-#: Time [s] the other training records must spend beyond a displacement for
-#: it to count as within their span when a held-out record is scored
-#: (:func:`loro`): the span is theirs less this much of samples at either
-#: end. A resonance rings past a stroke limit for a few samples at each step
+#: Time [s] one of the other training records must spend at or beyond a
+#: displacement for it to count as within their span when a held-out record
+#: is scored (:func:`loro`): each record's range less this much of samples
+#: at either end. A resonance rings past a stroke limit for a few samples at each step
 #: edge, and those alone made a record that never dwells at the limit span
 #: it: a stroke limit reached only by the held-out record (blind-harness
 #: seed 67000: 448 samples above the fitted knee on the held-out record, 3
@@ -353,15 +353,23 @@ def bootstrap(records, p0, p1, sigma2, seed, B=400, seg=0.2):
             "p50": float(np.quantile(g, 0.5))}
 
 
-def _dwelt_span(y, dt):
-    """Lowest and highest displacement [µm] of the samples `y` (step `dt` [s])
-    with :data:`SPAN_DWELL` of samples beyond each: the range they dwell in,
-    not the few samples a transient throws past it."""
-    k = min(int(math.ceil(SPAN_DWELL / dt - 1e-9)), (y.size - 1) // 2)  # no extra sample from rounding
-    if k <= 0:
-        return float(y.min()), float(y.max())
-    part = np.partition(y, (k, y.size - 1 - k))
-    return float(part[k]), float(part[y.size - 1 - k])
+def _dwelt_span(ys, dt):
+    """Lowest and highest displacement [µm] that one of the records `ys`
+    (arrays of their samples, step `dt` [s]) spends :data:`SPAN_DWELL` at or
+    beyond: the range they dwell in, not the few samples a transient throws
+    past it. A record shorter than twice that counts with its whole range."""
+    k = max(1, int(math.ceil(SPAN_DWELL / dt - 1e-9)))  # no extra sample from rounding
+    lo, hi = math.inf, -math.inf
+    for y in ys:
+        if y.size == 0:
+            continue
+        if y.size < 2 * k:
+            a, b = float(y.min()), float(y.max())
+        else:
+            part = np.partition(y, (k - 1, y.size - k))
+            a, b = float(part[k - 1]), float(part[y.size - k])
+        lo, hi = min(lo, a), max(hi, b)
+    return lo, hi
 
 
 def loro_passes(result, slack=0.0):
@@ -420,7 +428,8 @@ def loro(fitter, fit_base, fit_eff, eff_base, eff_new, yrefs):
         held = held[keep[held]]
         # ... and over the displacements they span: a stroke limit that only
         # one record reaches cannot be checked for agreement by the others
-        lo, hi = _dwelt_span(y[m], recs[i].dt)
+        lo, hi = _dwelt_span([y[bounds[j]:bounds[j + 1]][keep[bounds[j]:bounds[j + 1]]]
+                              for j in range(len(recs)) if j != i], fitter.dt)
         held = held[(y[held] >= lo) & (y[held] <= hi)]
         if held.size == 0:
             continue
