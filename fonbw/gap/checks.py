@@ -84,14 +84,14 @@ OWN_SHARE = 0.5
 #: Time [s] one of the other training records must spend at or beyond a
 #: displacement for it to count as within their span when a held-out record
 #: is scored (:func:`loro`): each record's range less this much of samples
-#: at either end. A resonance rings past a stroke limit for a few samples at each step
-#: edge, and those alone made a record that never dwells at the limit span
-#: it: a stroke limit reached only by the held-out record (blind-harness
-#: seed 67000: 448 samples above the fitted knee on the held-out record, 3
-#: ringing samples on the others, up to 1.5 µm past the stop) was judged on
-#: a gain the other records could not see (c = 3.8 from them, clamped to
-#: 0) and failed with a held-out ratio of 8.0. A dwell at a limit lasts far
-#: longer than 5 ms.
+#: at either end. A resonance rings past a stroke limit for a few samples at
+#: each step edge, and those alone made a record that never dwells at the
+#: limit span it: a stroke limit reached only by the held-out record
+#: (blind-harness seed 67000: 448 samples above the fitted knee on the
+#: held-out record, 3 ringing samples on the others, up to 1.5 µm past the
+#: stop) was judged on a gain the other records could not see (c = 3.8 from
+#: them, clamped to 0) and failed with a held-out ratio of 8.0. A dwell at a
+#: limit lasts far longer than 5 ms.
 SPAN_DWELL = 0.005
 
 
