@@ -5,7 +5,8 @@ bad provenance fields, parameter names and true/false values in a model
 file (and one with a byte-order mark, which loads), a model that diverges
 on the input, a diagnosis budget too small to search, a record whose
 output never moves in strict JSON, and a held-out check that cannot run or
-is cut short by Ctrl-C once the model is written; a trajectory without its
+is cut short by Ctrl-C once the model is written, or whose fit diverges on
+its record; a trajectory without its
 column and plant files that are not one (each named in the refusal)."""
 import json
 import re
@@ -203,6 +204,33 @@ def test_ctrl_c_after_the_model_is_written_says_so(d, tmp_path, monkeypatch, cap
     assert err.rstrip().endswith(f"fonbw identify: interrupted; {out} was written; the held-out check or the "
                                  "plot was cut short")
     assert fonbw.load_model(out).kind == "nbw"
+
+
+def test_a_held_out_fit_that_diverges_on_its_record_is_said_so(d, tmp_path, monkeypatch, capsys):
+    import dataclasses
+    import importlib
+
+    ident = importlib.import_module("fonbw.identify")  # the module: the package's name is the function
+    real = ident.identify
+
+    def wild_when_held_out(records, *args, **kw):
+        res = real(records, *args, **kw)
+        if len(records) > 1:
+            return res
+        # fitted on the other record alone: a model that runs away on the held-out one
+        wild = dict(fonbw.FONBW(**TABLE1_FONBW).to_dict()["params"], rho=1e300)
+        return dataclasses.replace(res, model=fonbw.FONBW(**wild))
+
+    monkeypatch.setattr(ident, "identify", wild_when_held_out)
+    out = tmp_path / "m.json"
+    code = main(["identify", str(d / "r0.csv"), str(d / "r1.csv"), "-o", str(out), "--max-evals", "60"])
+    cap = capsys.readouterr()
+    assert code == 0 and fonbw.load_model(out).kind == "fonbw"
+    for rec in ("r0.csv", "r1.csv"):
+        assert re.search(rf"warning: held out {re.escape(str(d / rec))}: the model fitted on the other 1 record\(s\) "
+                         r"diverges on it \(its output passes 1e\+09 µm or is not finite from sample 1, "
+                         r"t = 0.001 s\): no RMS", cap.err), cap.err
+    assert "held out" not in cap.out and "RuntimeWarning" not in cap.err and "RMS inf" not in cap.out + cap.err
 
 
 def test_parameter_errors_of_a_model_file_speak_of_its_fields():

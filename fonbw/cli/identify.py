@@ -124,9 +124,12 @@ def _holdout(recs, kw) -> None:
     A record the others cannot be fitted without (they hold a constant input,
     every candidate diverges on them) is said and skipped: the model on every
     record is written by then, and this check only reports on it."""
+    import numpy as np
+
     from ..identify import identify
     from ..objective import DivergedError, score
     from ..start import rest_level
+    from .records import OUTPUT_MAX, first_wild
 
     kw = {**kw, "progress": False}
     rest_u = rest_level([r.u for r in recs])  # the stage's, read off every record
@@ -140,6 +143,14 @@ def _holdout(recs, kw) -> None:
             continue
         if fit.message == "interrupted":
             raise KeyboardInterrupt
-        met = score(fit.model, r, kw["burn_in"][i], rest=rest_u)
+        with np.errstate(all="ignore"):  # a model that diverges on the record is said so below
+            met = score(fit.model, r, kw["burn_in"][i], rest=rest_u)
+        k = first_wild(met["yhat"])
+        if k is not None:
+            # the written model is fitted on every record; this one says only how the others generalize
+            say(f"warning: held out {r.path}: the model fitted on the other {len(rest)} record(s) diverges "
+                f"on it (its output passes {OUTPUT_MAX:g} µm or is not finite from sample {k}, "
+                f"t = {r.t[k]:.6g} s): no RMS")
+            continue
         print(f"held out {r.path}: RMS {met['rms']:.4g} µm = {met['rms_percent']:.3g} % of range "
               f"(model fitted on the other {len(rest)} record(s))")
