@@ -845,8 +845,23 @@ def dynamics_case(tmp_path_factory):
         assert cli_diagnose.run(ns) == 0
     finally:
         att.diagnose = real
-    res = json.loads((d / "out.json").read_text())
+    res = json.loads((d / "out.json").read_text(), parse_constant=_not_json)
     return res, (d / "out.html").read_text(), truth
+
+
+def _not_json(c):
+    raise AssertionError(f"not strict JSON: {c}")
+
+
+def test_the_diagnosis_json_is_strict_with_null_for_what_is_not_a_number(tmp_path):
+    from fonbw.gap.report import write_json
+
+    res = {"verdict": {"gap_closed": np.float64(0.5), "form": {"bootstrap": {"p10": float("nan")}}},
+           "candidates": [{"effect": "clip", "gap_closed": -np.inf, "checks": {"passed": np.bool_(False)}}]}
+    write_json(res, tmp_path / "g.json")
+    got = json.loads((tmp_path / "g.json").read_text(encoding="utf-8"), parse_constant=_not_json)
+    assert got == {"verdict": {"gap_closed": 0.5, "form": {"bootstrap": {"p10": None}}},
+                   "candidates": [{"effect": "clip", "gap_closed": None, "checks": {"passed": False}}]}
 
 
 def test_blind_resonance_is_named_first(dynamics_case):

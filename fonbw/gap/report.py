@@ -19,7 +19,7 @@ import io
 import json
 import math
 
-from ..io import atomic_open
+from ..io import atomic_open, jsonable
 from .checks import flag_text
 from .edges import summary_text
 from .selection import form_text, on_top_of_text, outcome_text
@@ -28,11 +28,15 @@ __all__ = ["write_json", "write_html"]
 
 
 def write_json(result, path):
-    """Write the diagnosis result (a DiagnosisResult or its dict) as JSON, atomically."""
+    """Write the diagnosis result (a DiagnosisResult or its dict) as strict
+    JSON, atomically: a figure that is not a finite number (a candidate that
+    diverged on the validation records, a bootstrap with nothing to resample)
+    is null, which every JSON reader takes, where -Infinity and NaN are not
+    JSON."""
     if hasattr(result, "to_dict"):
         result = result.to_dict()
     with atomic_open(path, "w", encoding="utf-8") as fh:
-        json.dump(result, fh, indent=1, ensure_ascii=False, allow_nan=True)
+        json.dump(jsonable(result, strict=True), fh, indent=1, ensure_ascii=False, allow_nan=False)
         fh.write("\n")
 
 
