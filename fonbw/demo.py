@@ -14,7 +14,6 @@ Every stage is timed; a stage that fails is reported as failed in the report
 """
 from __future__ import annotations
 
-import json
 import os
 import sys
 import time
@@ -116,7 +115,7 @@ def _stage_cosim(model, out, b):
 
 def _stage_gap(bench, model, out, seed, b, progress):
     from .signals import eq19_input, multi_input, sine_input, step_hold_input
-    from .gap import diagnose, write_html as gap_html
+    from .gap import diagnose, write_html as gap_html, write_json as gap_json
     from .io import decimate
 
     q = max(1, int(round(bench.fs / 5000.0)))  # 5 kHz, the rate the diagnosis is tuned and timed at
@@ -131,8 +130,7 @@ def _stage_gap(bench, model, out, seed, b, progress):
     d = os.path.join(out, "gap")
     os.makedirs(d, exist_ok=True)
     gap_html(res, os.path.join(d, "gap_report.html"))
-    with open(os.path.join(d, "gap.json"), "w", encoding="utf-8") as fh:
-        json.dump(res.to_dict(), fh, indent=2, default=float)
+    gap_json(res, os.path.join(d, "gap.json"))
     return res
 
 

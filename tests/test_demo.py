@@ -55,7 +55,11 @@ def test_gap_section_says_what_became_of_every_candidate(demo_dir):
     from fonbw.gap.selection import on_top_of_text, outcome_text
 
     gap = _section((demo_dir / "report.md").read_text(encoding="utf-8"), "Sim-to-real gap")
-    res = json.loads((demo_dir / "gap" / "gap.json").read_text(encoding="utf-8"))
+    def refuse(c):
+        raise AssertionError(f"not strict JSON: {c}")
+
+    # written by the diagnosis's own writer: strict JSON
+    res = json.loads((demo_dir / "gap" / "gap.json").read_text(encoding="utf-8"), parse_constant=refuse)
     for c in res["candidates"]:
         assert re.search(rf"^\| {c['effect']} \| [^|]+ \| {re.escape(outcome_text(c))} \|$", gap, re.M)
     # the bench's effects beyond the first are named, or refused, at later steps
