@@ -300,7 +300,7 @@ def score(model, rec, burn_in=0, history=None, history_burn_in=0, rest=0.0) -> d
         full = simulate_record(model, np.concatenate([history.u, rec.u]), rec.dt, history_burn_in)
         yhat, burn_in, before = full[history.n:], 0, full[:history.n]
         if history_burn_in > 0:
-            off = -float(np.mean((full[:history.n] - history.y)[history_burn_in:]))
+            off = -float(np.mean((before - history.y)[history_burn_in:]))
     elif burn_in > 0:
         yhat, how = _after_estimated_history(model, rec, burn_in, rest)
         off = -float(np.mean((yhat - rec.y)[burn_in:]))

@@ -143,7 +143,8 @@ def statespace_resource(sys_, input=PLANT_INPUT, output=PLANT_OUTPUT, dt=None) -
 
     ss = control.ss(sys_)
     if ss.ninputs != 1 or ss.noutputs != 1:
-        raise BuildError("the plant FMU is single-input single-output")
+        raise BuildError(f"{ss.ninputs} input(s) and {ss.noutputs} output(s); the plant FMU is "
+                         "single-input single-output")
     if ss.dt is True:
         raise BuildError("discrete plant without a sampling time")
     mats = {k: np.asarray(getattr(ss, k), dtype=float) for k in "ABCD"}
@@ -179,23 +180,17 @@ def plant_resource(path, dt: float | None = None) -> dict:
         raise BuildError(f"{path}: not JSON ({e})") from e
     except (OSError, UnicodeDecodeError) as e:
         raise BuildError(f"{path}: cannot read: {getattr(e, 'strerror', None) or e}") from e
-    try:
-        sys_ = control.ss(*mats, d["sys_dt"]) if d.get("sys_dt") else control.ss(*mats)
-        if sys_.ninputs != 1 or sys_.noutputs != 1:
-            raise ValueError(f"{sys_.ninputs} input(s) and {sys_.noutputs} output(s); the plant FMU is "
-                             "single-input single-output")
-        if sys_.dt is True:
-            raise ValueError("discrete without a sampling time")
-    except (ValueError, TypeError) as e:
-        # python-control's own message names the matrix, not the file
-        raise BuildError(f"{path}: fields A, B, C, D, sys_dt: not a state-space system ({e})") from e
-
-    res = statespace_resource(sys_, _plant_port(path, d, "input", PLANT_INPUT),
-                              _plant_port(path, d, "output", PLANT_OUTPUT),
-                              dt if dt is not None else _plant_dt(path, d))
+    ports = [_plant_port(path, d, "input", PLANT_INPUT), _plant_port(path, d, "output", PLANT_OUTPUT)]
+    step = dt if dt is not None else _plant_dt(path, d)
     desc = d.get("description", "")
     if not isinstance(desc, str):
         raise BuildError(f"{path}: field 'description': expected text, got {json.dumps(desc)}")
+    try:
+        sys_ = control.ss(*mats, d["sys_dt"]) if d.get("sys_dt") else control.ss(*mats)
+        res = statespace_resource(sys_, *ports, step)
+    except (ValueError, TypeError) as e:
+        # python-control's messages (and the resource's own checks) name the matrix, not the file
+        raise BuildError(f"{path}: fields A, B, C, D, sys_dt: not a state-space system ({e})") from e
     res["description"] = desc
     return res
 

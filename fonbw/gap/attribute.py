@@ -544,11 +544,13 @@ def _check_budget(budget, global_evals, evals):
 
     if enough(evals):
         return
+    # enough() only grows with g: the least that holds bounds the budget too
+    least_g = next(g for g in range(1, 10 ** 6) if enough(g))
     if global_evals is None:
-        least = next(b for b in range(1, 10 ** 6) if enough(int(round(GLOBAL_SHARE * b))))
+        least = next(b for b in range(1, 10 ** 6) if int(round(GLOBAL_SHARE * b)) >= least_g)
         given, fix = f"a budget of {budget} evaluations", f"give at least {least} (default 1000)"
     else:
-        given, fix = f"global_evals={global_evals}", f"give at least {next(g for g in range(1, 10 ** 6) if enough(g))}"
+        given, fix = f"global_evals={global_evals}", f"give at least {least_g}"
     raise ValueError(f"diagnose: {given} leaves each candidate's global search {evals} evaluations, "
                      f"less than one population of {CANDIDATE_POPSIZE} and its polish; {fix}")
 
