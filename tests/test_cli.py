@@ -359,3 +359,29 @@ def test_validate_takes_a_hold_above_the_models_rest_for_mid_drive(tmp_path):
     # variance is 0.70 x that of the true "rest -> 100 -> 40 V" (0.018 µm): a hold
     # tells a swing to the model's 120 V from none only through the slow relaxation
     assert res["rms"] < 0.05
+
+
+# A Ctrl-C while numba loads, made certain: the import of numba is what raises.
+_CTRL_C_AT_NUMBA = """
+import sys
+class CtrlC:
+    def find_spec(self, name, path=None, target=None):
+        if name == "numba":
+            raise KeyboardInterrupt
+sys.meta_path.insert(0, CtrlC())
+import _fonbw_start
+sys.argv = ["fonbw", "demo", "--quick"]
+sys.exit(_fonbw_start.main())
+"""
+
+
+def test_ctrl_c_while_the_package_loads_exits_130_without_a_traceback(tmp_path):
+    import importlib.metadata
+
+    # the console command starts there (what pip's script imports)
+    assert importlib.metadata.entry_points(group="console_scripts")["fonbw"].value == "_fonbw_start:main"
+    r = subprocess.run([sys.executable, "-c", _CTRL_C_AT_NUMBA], cwd=tmp_path, capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 130, r.stderr
+    assert r.stderr == "fonbw: interrupted while starting; nothing was written\n"
+    assert list(tmp_path.iterdir()) == []

@@ -21,6 +21,11 @@ def test_wheel_imports_the_installed_copy(wheel_env, tmp_path):
                                    "print(s.SLAVES_DIR)"], cwd=tmp_path, text=True).split()
     assert Path(out[0]).is_relative_to(purelib) and out[1] == "True"
     assert (Path(out[2]) / "fonbw_hysteresis_fmu.py").is_file()
+    # the console command's start module rides in the wheel beside the package
+    out = subprocess.check_output([str(py), "-c", "import importlib.metadata as m, _fonbw_start as s; "
+                                   "print(m.entry_points(group='console_scripts')['fonbw'].value); "
+                                   "print(s.__file__)"], cwd=tmp_path, text=True).split()
+    assert out[0] == "_fonbw_start:main" and Path(out[1]).is_relative_to(purelib)
 
 
 def test_wheel_builds_fmus_and_closes_the_loop(wheel_env, tmp_path):
