@@ -20,6 +20,7 @@ from __future__ import annotations
 import csv
 import math
 import re
+import shlex
 
 __all__ = ["KEYS", "parse_columns", "read_text", "sniff_delimiter", "split_rows", "resolve_columns",
            "parse_rows", "fmt"]
@@ -179,7 +180,8 @@ def _suggest(names, wanted) -> str:
                 found[k] = n if n and "," not in n else str(j + 1)
                 break
     if len(found) == len(wanted):
-        return "map them with --columns " + ",".join(f"{k}={v}" for k, v in found.items())
+        # quoted as a shell needs it: header names often hold spaces and brackets
+        return "map them with --columns " + shlex.quote(",".join(f"{k}={v}" for k, v in found.items()))
     return ("map them with --columns " + ",".join(f"{k}=COL" for k in wanted)
             + " (COL a header name or a 1-based position)")
 

@@ -69,7 +69,12 @@ def test_no_header_positions_and_odd_header(tmp_path):
     with pytest.raises(DataError) as ei:
         read_record(odd)
     assert str(ei.value) == (f"{odd}: row 1: missing column(s) 't', 'u', 'y'; header has '', 'Zeit [s]', "
-                             "'Weg [µm]', 'Spannung [V]'; map them with --columns t=Zeit [s],u=Spannung [V],y=Weg [µm]")
+                             "'Weg [µm]', 'Spannung [V]'; map them with --columns 't=Zeit [s],u=Spannung [V],y=Weg [µm]'")
+    # the hint, as a shell splits it, reads the file
+    import shlex
+
+    flag, mapping = shlex.split(str(ei.value).rsplit("map them with ", 1)[1])
+    assert flag == "--columns" and np.array_equal(read_record(odd, columns=mapping).u, r.u)
 
 
 def test_units_are_scaled_and_implausible_ones_flagged(tmp_path):
