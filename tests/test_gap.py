@@ -4,6 +4,7 @@ a small fixed-seed blind subset on the separate truth simulator."""
 import argparse
 import json
 import math
+import re
 
 import control as ct
 import numpy as np
@@ -1130,6 +1131,12 @@ def test_the_report_says_what_became_of_each_candidate():
                                                        "within_training_rates": {"records": [0, 3],
                                                                                  "gap_closed": 0.809}}})
     assert "<td>-0.333 (0.809 within the training rates)</td>" in row
+    # checks that did not run (no bootstrap, no ΔBIC) and a diverged refit show a dash, not "nan"
+    row = _candidate_row({"effect": "clip", "gap_closed": None, "rms_validate": math.inf, "params": {},
+                          "accepted": False, "checks": {"passed": False, "failed": "closes too little",
+                                                        "delta_bic": math.nan}})
+    cells = re.findall(r"<td>(.*?)</td>", row)
+    assert cells[1:6] == ["–"] * 5 and "nan" not in row and "inf" not in row
 
 
 def test_result_object_reads_as_its_json():

@@ -134,6 +134,12 @@ _CANDIDATE_HEAD = ("<tr><th>effect</th><th>gap closed</th><th>val. RMS [µm]</th
                    "<th>bootstrap p10</th><th>held-out MSE ratio</th><th>accepted</th><th>parameters</th></tr>")
 
 
+def _num(x, spec):
+    """`x` formatted by `spec`, or a dash for a figure not computed (None) or
+    not finite (a check that did not run, a refit that diverged)."""
+    return "–" if x is None or not math.isfinite(x) else format(x, spec)
+
+
 def _candidate_row(c):
     """A candidate's table row, with what became of it (:func:`~fonbw.gap.selection.outcome_text`)."""
     esc = html.escape
@@ -141,13 +147,12 @@ def _candidate_row(c):
     bs = ch.get("bootstrap") or {}
     lo = (ch.get("loro") or {}).get("ratios")
     params = ", ".join(f"{k}={val:.4g}" for k, val in c["params"].items())
-    gc, rms = c["gap_closed"], c["rms_validate"]
     w = ch.get("within_training_rates")
     within = "" if w is None else f" ({w['gap_closed']:.3f} within the training rates)"
-    return (f"<tr><td>{esc(c['effect'])}</td><td>{'–' if gc is None else f'{gc:.3f}'}{within}</td>"
-            f"<td>{'–' if rms is None else f'{rms:.4g}'}</td>"
-            f"<td>{ch.get('delta_bic', math.nan):.4g}</td><td>{ch.get('own_bic', math.nan):.4g}</td>"
-            f"<td>{bs.get('p10', math.nan):.3f}</td>"
+    return (f"<tr><td>{esc(c['effect'])}</td><td>{_num(c['gap_closed'], '.3f')}{within}</td>"
+            f"<td>{_num(c['rms_validate'], '.4g')}</td>"
+            f"<td>{_num(ch.get('delta_bic'), '.4g')}</td><td>{_num(ch.get('own_bic'), '.4g')}</td>"
+            f"<td>{_num(bs.get('p10'), '.3f')}</td>"
             f"<td>{esc(', '.join(f'{q:.2f}' for q in lo)) if lo else '–'}</td>"
             f"<td>{esc(outcome_text(c))}</td><td>{esc(params)}</td></tr>")
 
