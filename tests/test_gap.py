@@ -299,6 +299,82 @@ def test_a_stroke_limit_only_lowers_the_slope_at_most_to_flat():
         assert b[-1] == (0.0 if c_fit == 0.0 else pytest.approx(c_fit, abs=0.01))
 
 
+def test_a_stroke_limit_ahead_of_a_resonance_fit_equals_scipy_least_squares():
+    # y = H[z + c f(z)] + d t, z = M b: the limit acts before the resonance H,
+    # so the output rings past it at the steps. The fitter's Gauss-Newton
+    # against scipy's trust-region least squares on the same problem; without
+    # noise it finds the truth, where the limit after the resonance cannot
+    from scipy.optimize import least_squares
+
+    from fonbw.gap import prelimit
+
+    rng = np.random.default_rng(8)
+    dt, n = 2e-4, 6000
+    t = np.arange(n) * dt
+    u = np.where(t < 0.6, 60 - 60 * np.cos(2 * np.pi * 2 * t), np.where(t % 0.2 < 0.1, 110.0, 10.0))
+    M = np.column_stack([u / 120, (u / 120) ** 2, np.sin(u / 40)])
+    dyn, sat = fx.Dynamics(dt), fx.Saturation(0.0, 20.0)
+    th_d, th = np.array([800.0, 0.1]), np.array([14.0, 0.2])
+
+    def H(v):
+        return dyn.output_op(np.atleast_2d(v), dt, th_d).reshape(np.shape(v))
+
+    def model(p):
+        z = M @ p[:3]
+        return H(z + p[-1] * sat.shape(z, th)[0]) + p[3] * t
+
+    truth = np.array([18.0, 2.0, 0.5, 0.3, -0.9])
+    HM = H(M.T).T
+    pre = prelimit.PreLimit(sat, th, M, H)
+    for noise in (0.0, 0.01):
+        y = model(truth) + rng.normal(0.0, noise, n)
+        assert np.sum(y > 14.3) > 1000  # past the knee: the slope above it and the ringing
+        # started from the limit driven by a wrong nominal output, as in diagnose
+        A = np.column_stack([HM, t, H(sat.shape(0.97 * (M @ truth[:3]), th)[0])])
+        b, r = Fitter.fit_linear(A, y, pre)
+        np.testing.assert_allclose(Fitter.output(A, b, pre), y - r, atol=1e-12)
+        if noise == 0.0:
+            np.testing.assert_allclose(b, truth, rtol=1e-9)
+            # the same limit after the resonance cannot follow the ringing
+            _, r_after = Fitter.fit_linear(np.column_stack([HM, t, sat.shape(H(M @ truth[:3]), th)[0]]), y,
+                                           (sat, th))
+            assert math.sqrt(float(r_after @ r_after) / n) > 0.1
+            continue
+        ref = least_squares(lambda p: model(p) - y, Fitter.solve(A, y)[0], xtol=1e-14, ftol=1e-14, gtol=1e-14)
+        np.testing.assert_allclose(b, ref.x, rtol=1e-6, atol=1e-8)
+        np.testing.assert_allclose(r, -ref.fun, atol=1e-8)  # 1e-6 of the noise
+        # seen on a subset of the samples, the limit filters the whole record first
+        idx = np.arange(1000, 5000)
+        np.testing.assert_allclose(Fitter.output(A[idx], b, Fitter.limit_on(pre, idx)),
+                                   Fitter.output(A, b, pre)[idx], atol=1e-12)
+
+
+def test_the_design_puts_a_stroke_limit_ahead_of_a_resonance():
+    # beside a resonance the design's limit is a PreLimit: its regressors are
+    # the design's without the resonance, its start column the resonance's
+    # output of the usual one; without a resonance nothing changes
+    from fonbw.gap.prelimit import PreLimit
+    from fonbw.identify import search_space
+
+    sc = tr.draw_scenario(5, "null", scale=0.25)
+    recs = sc["train"]
+    fit = Fitter(recs, search_space("fonbw", recs, N=3))
+    sat, dyn = fx.Saturation(0.0, 20.0), fx.Dynamics(DT)
+    X = np.array([[0.5, 0.5, 1.0, 1.0, 1.0]])
+    th_s, th_d = np.array([[15.0, 0.5]]), np.array([[900.0, 0.2]])
+    yref = [np.linspace(0.0, 17.0, len(r.u)) for r in recs]
+    A0, o0 = fit.design_limit(recs, X, [sat], [th_s], yref)
+    A1, o1 = fit.design_limit(recs, X, [dyn, sat], [th_d, th_s], yref)
+    assert o0[0] is sat and not isinstance(o0, PreLimit) and isinstance(o1, PreLimit)
+    np.testing.assert_array_equal(o1.M, A0[:, :-1])
+    k = 0
+    for r in recs:
+        seg = slice(k, k + len(r.u))
+        np.testing.assert_allclose(A1[seg].T, dyn.output_op(A0[seg].T, DT, th_d[0]), atol=1e-12)
+        k += len(r.u)
+    assert k == len(A1)
+
+
 def test_creep_gains_are_bounded_below_by_zero():
     # a lead (g < 0) on two of three mode columns: the bounded fit matches
     # scipy's bounded linear least squares; with every g >= 0 the bound is

@@ -91,6 +91,9 @@ class Effect:
     input_side = False
     filtered_columns = True
     output_nonlinear = False
+    #: An operator on the output (:meth:`output_op`, a resonance): an output
+    #: limit acts ahead of it (:mod:`fonbw.gap.prelimit`).
+    output_linear = False
     compressive = False
     c_min = -math.inf
     lin_nonneg = False

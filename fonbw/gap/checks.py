@@ -15,6 +15,8 @@ import math
 
 import numpy as np
 
+from .prelimit import PreLimit
+
 __all__ = ["at_floor", "CONDITIONS", "RATE_CONDITIONS", "AMPLITUDE_TOL", "MIN_DROP", "LATE_SHARE", "LATE_DROP", "BIC_EVIDENCE",
            "OWN_SHARE", "material", "bic_change", "lacks_evidence", "coverage", "top_passed", "records_past_top",
            "within_rates", "longest_run", "flag_text", "loro_passes", "remaining", "mse", "bootstrap", "loro"]
@@ -399,10 +401,9 @@ def loro(fitter, fit_base, fit_eff, eff_base, eff_new, yrefs):
     recs = fitter.records
     if len(recs) < 2:
         return None
-    A0 = fitter.design(recs, fit_base["x"][None, :], eff_base, [t[None, :] for t in fit_base["th"]], yrefs)[0]
-    A1 = fitter.design(recs, fit_eff["x"][None, :], eff_new, [t[None, :] for t in fit_eff["th"]], yrefs)[0]
-    o0 = fitter.outer(eff_base, [t[None, :] for t in fit_base["th"]], 0)
-    o1 = fitter.outer(eff_new, [t[None, :] for t in fit_eff["th"]], 0)
+    A0, o0 = fitter.design_limit(recs, fit_base["x"][None, :], eff_base, [t[None, :] for t in fit_base["th"]], yrefs)
+    A1, o1 = fitter.design_limit(recs, fit_eff["x"][None, :], eff_new, [t[None, :] for t in fit_eff["th"]], yrefs)
+    on = fitter.limit_on
     lens = [len(r.y) for r in recs]
     bounds = np.cumsum([0] + lens)
     y = fitter.y_all
@@ -412,7 +413,8 @@ def loro(fitter, fit_base, fit_eff, eff_base, eff_new, yrefs):
     # reference's extrapolation from one record
     nb = fitter.core.n_base if getattr(fitter.core, "name", "") == "reference" else 0
     nn = [fitter.nonneg(eff_base), fitter.nonneg(eff_new)]
-    full = ([fitter.fit_linear(A[keep], y[keep], o, nonneg=n)[0] for A, o, n in ((A0, o0, nn[0]), (A1, o1, nn[1]))]
+    full = ([fitter.fit_linear(A[keep], y[keep], on(o, keep), nonneg=n)[0]
+             for A, o, n in ((A0, o0, nn[0]), (A1, o1, nn[1]))]
             if nb else [None, None])
     if any(b is None for b in full):
         nb = 0  # non-finite columns: both models refit in full, alike
@@ -438,8 +440,9 @@ def loro(fitter, fit_base, fit_eff, eff_base, eff_new, yrefs):
             if nb:
                 A = np.column_stack([A[:, :nb] @ bf[:nb], A[:, nb:]])
                 n = None if n is None else [j - nb + 1 for j in n]  # the core is one column now
-            b, _ = fitter.fit_linear(A[m], y[m], o, nonneg=n)
-            r = y[held] - fitter.output(A[held], b, o)
+                o = o.merged(nb, bf[:nb]) if isinstance(o, PreLimit) else o
+            b, _ = fitter.fit_linear(A[m], y[m], on(o, m), nonneg=n)
+            r = y[held] - fitter.output(A[held], b, on(o, held))
             out.append(float(np.mean(r * r)))
         ratios.append(out[1] / out[0] if out[0] > 0 else 1.0)
         tot[0] += out[0] * held.size

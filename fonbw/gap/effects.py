@@ -19,7 +19,9 @@ refit cheap every block is written in one of four forms, which compose:
 * **output nonlinearity** — ``shape(z, th)`` bends the model's own output z
   (saturation: y = z + c f(z) above a knee); its gain c and the linear
   parameters inside z are solved together by Gauss-Newton
-  (:meth:`fonbw.gap.attribute.Fitter.fit_linear`).
+  (:meth:`fonbw.gap.fitter.Fitter.fit_linear`). Beside a linear output
+  operator it acts ahead of it, as a stack's strain saturates before the
+  stage's mechanics ring (:mod:`fonbw.gap.prelimit`).
 
 Nonlinear parameters (``names``) are searched; linear ones (``lin_names``)
 are solved. Units: u [V], y [µm], t [s], frequencies [Hz].
@@ -191,6 +193,7 @@ class Dynamics(Effect):
 
     name = "dynamics"
     names = ("f_res", "zeta")
+    output_linear = True
     units = {"f_res": "Hz", "zeta": "1"}
     lag = True
     edges_left_most = edges.MODE_LEFT

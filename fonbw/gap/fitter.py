@@ -21,7 +21,7 @@ from .. import hysteresis as hyst
 from ..de import jde_minimize
 from ..io import Record
 from ..io import decimate as io_decimate
-from . import knee
+from . import knee, prelimit
 from .cores import FonbwCore
 
 __all__ = ["KIND", "Fitter", "simulate_rows", "x_from_model", "decimate", "nominal_search"]
@@ -126,12 +126,16 @@ class Fitter:
         """
         return list(self.designs(records, X, effects, TH, yrefs))
 
-    def designs(self, records, X, effects, TH, yrefs):
+    def designs(self, records, X, effects, TH, yrefs, limits=False):
         """The matrices of :meth:`design`, built one row at a time (a generator).
 
         A caller that needs one row at a time holds one matrix, not P. The
         base columns of a row (a simulation) come from :meth:`base_columns`,
-        shared by every row with the same X and input-side parameters.
+        shared by every row with the same X and input-side parameters. With
+        `limits`, each matrix comes with the row's output nonlinearity (the
+        `outer` of :meth:`fit_linear`): None, (effect, parameters), or, beside
+        an output operator (a resonance), a :class:`~fonbw.gap.prelimit.PreLimit`
+        that acts ahead of it, whose start column is filtered too.
         """
         X = np.atleast_2d(X)
         P = X.shape[0]
@@ -144,6 +148,7 @@ class Fitter:
             uniq, inv = np.unique(key, axis=0, return_inverse=True)
             inv = np.ravel(inv)
             first = np.array([int(np.flatnonzero(inv == j)[0]) for j in range(len(uniq))])
+        pre = prelimit.ahead_of_operators(effects)
         parts = []
         for rec, yref in zip(records, yrefs):
             B = self.base_columns(rec, X, key, first, inp)
@@ -156,7 +161,7 @@ class Fitter:
         # sums in the least-squares products: it is kept as it is, so the
         # fits' numbers do not depend on how the matrices were cached.
         for p in range(P):
-            m = []
+            m, m_pre = [], []
             for rec, ctx, B, fixed in parts:
                 filt, plain, last = [B[inv[p]]], [], []
                 for e, th in zip(effects, TH):
@@ -164,10 +169,21 @@ class Fitter:
                     if C is not None:
                         (last if e.output_nonlinear else filt if e.filtered_columns else plain).append(C.T)
                 M = np.vstack(filt) if len(filt) > 1 else filt[0]
-                for e, th in zip(effects, TH):
-                    M = e.output_op(M, rec.dt, th[p])
+                if pre:
+                    m_pre.append(M)
+                    last = [prelimit.operate(np.vstack(last), effects, TH, p, rec.dt)]
+                M = prelimit.operate(M, effects, TH, p, rec.dt)
                 m.append(np.vstack([M] + plain + last) if plain or last else M)
-            yield np.hstack(m).T
+            A = np.hstack(m).T
+            if not limits:
+                yield A
+            elif pre:
+                lens = [len(rec.u) for rec in records]
+                dts = [rec.dt for rec in records]
+                yield A, prelimit.PreLimit(pre[0], TH[pre[1]][p], np.hstack(m_pre).T,
+                                           lambda v, p=p: prelimit.operate_stacked(v, effects, TH, p, lens, dts))
+            else:
+                yield A, self.outer(effects, TH, p)
 
     def base_columns(self, rec, X, key, first, inp):
         """Base columns (q, n) of the unique rows ``first`` of X on one record.
@@ -236,6 +252,19 @@ class Fitter:
         idx = [j for e, sl in zip(effects, self.lin_slices(effects)) if e.lin_nonneg
                for j in range(sl.start, sl.stop)]
         return idx or None
+
+    def design_limit(self, records, X, effects, TH, yrefs):
+        """The design matrix of the first row of `X` with its output
+        nonlinearity (:meth:`designs` with ``limits``)."""
+        return next(self.designs(records, X, effects, TH, yrefs, limits=True))
+
+    @staticmethod
+    def limit_on(outer, rows):
+        """An output nonlinearity seen on `rows` of the stacked records (None: all):
+        a limit ahead of the output operators filters whole records first."""
+        if rows is None or not isinstance(outer, prelimit.PreLimit):
+            return outer
+        return outer.on(rows)
 
     @staticmethod
     def outer(effects, TH, p):
@@ -309,7 +338,8 @@ class Fitter:
             if not neg:
                 break
             free[min(neg, key=lambda j: b[j] * np.linalg.norm(A[:, j]))] = False
-            bf, r = cls._fit_free(A[:, free], y, outer, iters)
+            o = outer.select(free[:outer.q]) if isinstance(outer, prelimit.PreLimit) else outer
+            bf, r = cls._fit_free(A[:, free], y, o, iters)
             if bf is None:
                 return None, None
             b = np.zeros(A.shape[1])
@@ -322,19 +352,30 @@ class Fitter:
         b, r = cls.solve(A, y)
         if outer is None or b is None:
             return b, r
-        e, th = outer
-        # column-major, so that each entry of the normal equations is one
-        # pass over two contiguous columns (fonbw.gap.knee)
-        B = np.asfortranarray(A[:, :-1])
-        y = np.ascontiguousarray(y, dtype=float)
+        if isinstance(outer, prelimit.PreLimit):
+            steps = prelimit.Steps(A, y, outer)
+        else:
+            steps = knee.Steps(A, y, outer)
         b = b.copy()
-        c_min = e.c_min
-        b[-1] = max(b[-1], c_min)
-        r, f, df = np.empty_like(y), np.empty_like(y), np.empty_like(y)
-        rn, fn, dfn = np.empty_like(y), np.empty_like(y), np.empty_like(y)
-        sse = e.residual(B, b, y, th, r, f, df)
+        b[-1] = max(b[-1], steps.e.c_min)
+        b, r = cls._gauss_newton(b, steps, iters)
+        if steps.e.compressive and b[-1] > 0.0:
+            # the bound c ≤ 0 is active: the block is off, the rest linear again
+            return steps.off(cls.solve)
+        return b, r
+
+    @classmethod
+    def _gauss_newton(cls, b, steps, iters):
+        """Gauss-Newton from `b` on the output nonlinearity's problem `steps`
+        (its ``residual(b, into)`` returning the sum of squares, its
+        ``normal(b, state)``, and its block ``e``), halving a step that does
+        not lower the residual; c (the last coefficient) is held at or above
+        the block's ``c_min``. Returns (b, residual)."""
+        c_min = steps.e.c_min
+        cur, nxt = steps.buffers(), steps.buffers()
+        sse = steps.residual(b, cur)
         for _ in range(iters):
-            G, g = knee.normal_equations(B, b[-1], df, f, r)
+            G, g = steps.normal(b, cur)
             step = cls._gn_step(G, g)
             if step is not None and b[-1] <= c_min + 1e-12 and step[-1] < 0.0:
                 # the bound is active: c stays, the rest takes the step
@@ -351,7 +392,7 @@ class Fitter:
             for _ in range(6):
                 bn = b + lam * step
                 bn[-1] = max(bn[-1], c_min)
-                sn = e.residual(B, bn, y, th, rn, fn, dfn)
+                sn = steps.residual(bn, nxt)
                 if sn < sse:
                     better = True
                     break
@@ -360,14 +401,10 @@ class Fitter:
                 break
             gain = (sse - sn) / max(sse, 1e-300)
             b, sse = bn, sn
-            r, f, df, rn, fn, dfn = rn, fn, dfn, r, f, df
+            cur, nxt = nxt, cur
             if gain < 1e-9:
                 break
-        if e.compressive and b[-1] > 0.0:
-            # the bound c ≤ 0 is active: the block is off, the rest linear again
-            b0, r0 = cls.solve(B, y)
-            return (None, None) if b0 is None else (np.r_[b0, 0.0], r0)
-        return b, r
+        return b, cur[0]
 
     @staticmethod
     def _gn_step(G, g):
@@ -392,14 +429,16 @@ class Fitter:
         """Model output of coefficients `b` on design `A` (see :meth:`fit_linear`)."""
         if outer is None:
             return A @ b
+        if isinstance(outer, prelimit.PreLimit):
+            return prelimit.output(A, b, outer)
         z = A[:, :-1] @ b[:-1]
         return z + b[-1] * outer[0].shape(z, outer[1])[0]
 
     def cost(self, X, effects, TH, yrefs):
         """Training RMS [µm] of each candidate row (inf for divergent rows)."""
         out = np.full(np.atleast_2d(X).shape[0], np.inf)
-        for p, A in enumerate(self.designs(self.records, X, effects, TH, yrefs)):
-            b, r = self.fit_linear(self.rows(A), self.y, self.outer(effects, TH, p), nonneg=self.nonneg(effects))
+        for p, (A, o) in enumerate(self.designs(self.records, X, effects, TH, yrefs, limits=True)):
+            b, r = self.fit_linear(self.rows(A), self.y, self.limit_on(o, self.keep), nonneg=self.nonneg(effects))
             if b is not None:
                 out[p] = math.sqrt(float(np.mean(r * r)))
         return out
@@ -501,8 +540,8 @@ class Fitter:
         return self._fit_at(X, TH, effects, yrefs, 1)
 
     def _fit_at(self, X, TH, effects, yrefs, nfev):
-        A = self.design(self.records, X, effects, TH, yrefs)[0]
-        beta, r = self.fit_linear(self.rows(A), self.y, self.outer(effects, TH, 0), nonneg=self.nonneg(effects))
+        A, o = self.design_limit(self.records, X, effects, TH, yrefs)
+        beta, r = self.fit_linear(self.rows(A), self.y, self.limit_on(o, self.keep), nonneg=self.nonneg(effects))
         return {"x": X[0], "th": [t[0] for t in TH], "beta": beta,
                 "rms": math.sqrt(float(np.mean(r * r))) if beta is not None else math.inf,
                 "nfev": nfev}
@@ -516,8 +555,8 @@ class Fitter:
             return [np.full(len(r.u), np.nan) for r in records]
         X = fit["x"][None, :]
         TH = [t[None, :] for t in fit["th"]]
-        A = self.design(records, X, effects, TH, yrefs)[0]
-        y = self.output(A, fit["beta"], self.outer(effects, TH, 0))
+        A, o = self.design_limit(records, X, effects, TH, yrefs)
+        y = self.output(A, fit["beta"], o)
         out, k = [], 0
         for r in records:
             out.append(y[k:k + len(r.u)])

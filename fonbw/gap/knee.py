@@ -22,7 +22,7 @@ import numpy as np
 
 from .blas import single_thread
 
-__all__ = ["softplus", "residual", "normal_equations"]
+__all__ = ["softplus", "residual", "normal_equations", "Steps"]
 
 # Below 2^−54 (|s| > 37.4) the correction log1p(e) − e ≈ −e²/2 is under half
 # an ulp of e, so log1p would return e itself: the call is skipped there.
@@ -128,3 +128,33 @@ def normal_equations(B, c, df, f, r):
     with single_thread():
         _normal(B, float(c), df, f, r, G, g)
     return G, g
+
+
+class Steps:
+    """The Gauss-Newton problem of an output nonlinearity on the model's own
+    output, ``y ≈ z + c f(z)``, ``z = A[:, :-1] b[:-1]`` (:meth:`fonbw.gap.fitter.Fitter.fit_linear`):
+    compiled residual and normal equations (this module)."""
+
+    def __init__(self, A, y, outer):
+        self.e, self.th = outer
+        # column-major, so that each entry of the normal equations is one
+        # pass over two contiguous columns (_normal)
+        self.B = np.asfortranarray(A[:, :-1])
+        self.y = np.ascontiguousarray(y, dtype=float)
+
+    def buffers(self):
+        """(r, f, f') of one evaluation."""
+        return np.empty_like(self.y), np.empty_like(self.y), np.empty_like(self.y)
+
+    def residual(self, b, into):
+        r, f, df = into
+        return self.e.residual(self.B, b, self.y, self.th, r, f, df)
+
+    def normal(self, b, state):
+        r, f, df = state
+        return normal_equations(self.B, b[-1], df, f, r)
+
+    def off(self, solve):
+        """The fit with the block off (c = 0): the rest's plain least squares."""
+        b0, r0 = solve(self.B, self.y)
+        return (None, None) if b0 is None else (np.r_[b0, 0.0], r0)

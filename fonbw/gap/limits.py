@@ -32,6 +32,8 @@ class Saturation(Effect):
     training records did not reach (a polynomial bends back); a sharp corner
     (w → 0) cannot follow a limit that sets in gradually. A knee at the top
     of the training range with a narrow corner switches the block off.
+    Beside a resonance the block acts ahead of it, so that the output rings
+    past the limit at a step (:mod:`fonbw.gap.prelimit`).
     """
 
     name = "saturation"
