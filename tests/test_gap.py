@@ -343,10 +343,25 @@ def test_a_stroke_limit_ahead_of_a_resonance_fit_equals_scipy_least_squares():
         ref = least_squares(lambda p: model(p) - y, Fitter.solve(A, y)[0], xtol=1e-14, ftol=1e-14, gtol=1e-14)
         np.testing.assert_allclose(b, ref.x, rtol=1e-6, atol=1e-8)
         np.testing.assert_allclose(r, -ref.fun, atol=1e-8)  # 1e-6 of the noise
-        # seen on a subset of the samples, the limit filters the whole record first
-        idx = np.arange(1000, 5000)
-        np.testing.assert_allclose(Fitter.output(A[idx], b, Fitter.limit_on(pre, idx)),
-                                   Fitter.output(A, b, pre)[idx], atol=1e-12)
+        # seen on a subset of the samples (a burn-in left out), the limit
+        # filters the whole record first: scipy on the same rows
+        idx = np.arange(1000, n)
+        sub = Fitter.limit_on(pre, idx)
+        np.testing.assert_allclose(Fitter.output(A[idx], b, sub), Fitter.output(A, b, pre)[idx], atol=1e-12)
+        b_s, r_s = Fitter.fit_linear(A[idx], y[idx], sub)
+        ref = least_squares(lambda p: model(p)[idx] - y[idx], Fitter.solve(A[idx], y[idx])[0],
+                            xtol=1e-14, ftol=1e-14, gtol=1e-14)
+        np.testing.assert_allclose(b_s, ref.x, rtol=1e-6, atol=1e-8)
+        assert not np.allclose(b_s, b, rtol=1e-6, atol=1e-8)  # another fit than on every row
+        # a gain bounded below by 0 among the filtered regressors (creep's): held
+        # at 0, its regressor leaves the limit's too; scipy's bounded fit agrees
+        yb = model(np.array([18.0, -2.0, 0.5, 0.3, -0.9])) + rng.normal(0.0, noise, n)
+        b_b, _ = Fitter.fit_linear(A, yb, pre, nonneg=[1])
+        lo, hi = [-np.inf, 0.0, -np.inf, -np.inf, -1.0], [np.inf, np.inf, np.inf, np.inf, 0.0]
+        ref = least_squares(lambda p: model(p) - yb, np.clip(Fitter.solve(A, yb)[0], np.add(lo, 1e-9), hi),
+                            bounds=(lo, hi), xtol=1e-14, ftol=1e-14, gtol=1e-14)
+        assert b_b[1] == 0.0 and ref.x[1] == pytest.approx(0.0, abs=1e-9)
+        np.testing.assert_allclose(b_b, ref.x, rtol=1e-5, atol=1e-6)
 
 
 def test_the_design_puts_a_stroke_limit_ahead_of_a_resonance():

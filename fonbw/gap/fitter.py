@@ -122,7 +122,9 @@ class Fitter:
 
         ``TH`` holds one (P, k_e) array per effect; ``yrefs`` the nominal
         output of each record (creep's driving signal). Column order:
-        (u/U)^1..N, ħ, then each effect's additive regressors.
+        (u/U)^1..N, ħ, then each effect's additive regressors, the output
+        nonlinearity's start column last (filtered by the output operators
+        when it acts ahead of them, :meth:`designs`).
         """
         return list(self.designs(records, X, effects, TH, yrefs))
 
@@ -183,7 +185,7 @@ class Fitter:
                 yield A, prelimit.PreLimit(pre[0], TH[pre[1]][p], np.hstack(m_pre).T,
                                            lambda v, p=p: prelimit.operate_stacked(v, effects, TH, p, lens, dts))
             else:
-                yield A, self.outer(effects, TH, p)
+                yield A, self._outer(effects, TH, p)
 
     def base_columns(self, rec, X, key, first, inp):
         """Base columns (q, n) of the unique rows ``first`` of X on one record.
@@ -267,8 +269,10 @@ class Fitter:
         return outer.on(rows)
 
     @staticmethod
-    def outer(effects, TH, p):
-        """The output nonlinearity of row `p` as (effect, parameters), or None."""
+    def _outer(effects, TH, p):
+        """The output nonlinearity of row `p` as (effect, parameters), or None:
+        the limit after the output operators; :meth:`designs` with ``limits``
+        gives the one that goes with a design."""
         for e, th in zip(effects, TH):
             if e.output_nonlinear:
                 return e, np.asarray(th[p], dtype=float)
@@ -328,6 +332,12 @@ class Fitter:
         one is negative, the most negative (in units of its column's norm) is
         held at 0 and the rest refit, a backward elimination that needs no
         extra solve when the bounds are inactive. Returns (None, None) for non-finite columns.
+
+        `outer` is the output nonlinearity as (effect, parameters), or a
+        :class:`~fonbw.gap.prelimit.PreLimit` for a limit ahead of the output
+        operators: the same Gauss-Newton on its own residual and Jacobian
+        (:class:`~fonbw.gap.prelimit.Steps`). Use the one :meth:`designs`
+        gives with ``limits``.
         """
         b, r = cls._fit_free(A, y, outer, iters)
         if nonneg is None or b is None:

@@ -148,12 +148,12 @@ def _candidate_row(c):
     lo = (ch.get("loro") or {}).get("ratios")
     params = ", ".join(f"{k}={val:.4g}" for k, val in c["params"].items())
     w = ch.get("within_training_rates")
-    within = "" if w is None else f" ({w['gap_closed']:.3f} within the training rates)"
+    within = "" if w is None else f" ({_num(w['gap_closed'], '.3f')} within the training rates)"
     return (f"<tr><td>{esc(c['effect'])}</td><td>{_num(c['gap_closed'], '.3f')}{within}</td>"
             f"<td>{_num(c['rms_validate'], '.4g')}</td>"
             f"<td>{_num(ch.get('delta_bic'), '.4g')}</td><td>{_num(ch.get('own_bic'), '.4g')}</td>"
             f"<td>{_num(bs.get('p10'), '.3f')}</td>"
-            f"<td>{esc(', '.join(f'{q:.2f}' for q in lo)) if lo else '–'}</td>"
+            f"<td>{esc(', '.join(_num(q, '.2f') for q in lo)) if lo else '–'}</td>"
             f"<td>{esc(outcome_text(c))}</td><td>{esc(params)}</td></tr>")
 
 
