@@ -267,9 +267,10 @@ def _store(row, out, cache, cache_path):
           f" unexplained {row.get('unexplained')} ({row['total_s']:.0f} s)", flush=True)
 
 
-def run(n, seed0, out, budget, only=None, options=None, cache_path=None, scheduler=None, workers=None):
-    """Run scenarios seed0 … seed0 + n − 1 (those not yet in `out`) as tasks on
-    dask.distributed, appending one line each as it completes.
+def run(n, seed0, out, budget, only=None, options=None, cache_path=None, scheduler=None, workers=None,
+        seeds=None):
+    """Run scenarios seed0 … seed0 + n − 1, or the list `seeds` (those not yet
+    in `out`), as tasks on dask.distributed, appending one line each as it completes.
 
     Every scenario draws from its own seed and reads the oracle cache as it
     was at submission, so a row does not depend on the number of workers nor
@@ -284,8 +285,8 @@ def run(n, seed0, out, budget, only=None, options=None, cache_path=None, schedul
     opt = {**DEFAULTS, **(options or {})}
     done = {r["seed"] for r in _read_jsonl(out)}
     cache = {r["key"]: r["value"] for r in _read_jsonl(cache_path)}
-    seeds = [seed0 + i for i in range(n)
-             if seed0 + i not in done and not (only and scenario_kind(seed0 + i) not in only)]
+    todo = [seed0 + i for i in range(n)] if seeds is None else list(seeds)
+    seeds = [s for s in todo if s not in done and not (only and scenario_kind(s) not in only)]
     items = [(seed, budget, {**opt, "cache": dict(cache)}) for seed in seeds]
     for _, row in map_tasks(_scenario_task, items, scheduler, workers, name="blind-gap"):
         _store(row, out, cache, cache_path)
@@ -314,6 +315,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("-n", type=int, default=40, help="number of scenarios")
     ap.add_argument("--seed0", type=int, default=1000)
+    ap.add_argument("--seeds", type=int, nargs="+", metavar="SEED",
+                    help="run these seeds instead of -n from --seed0 (spent scenarios diagnosed again)")
     ap.add_argument("--out", default="/tmp/blind_gap.jsonl")
     ap.add_argument("--budget", type=int, default=1000)
     ap.add_argument("--only", nargs="+", metavar="KIND",
@@ -345,7 +348,7 @@ def main(argv=None):
     mid = DEFAULTS["mid_drive"] if ns.mid_drive is None else ns.mid_drive
     opt = {"families": ns.family, "scale": ns.scale, "mid_drive": mid, "oracle": ns.oracle}
     run(ns.n, ns.seed0, ns.out, ns.budget, ns.only, opt, ns.oracle_cache or ns.out + ".oracle.jsonl",
-        scheduler=ns.scheduler, workers=ns.workers)
+        scheduler=ns.scheduler, workers=ns.workers, seeds=ns.seeds)
     print(summary(ns.out))
     return 0
 

@@ -17,12 +17,17 @@ diagnosing anything again. Two scans:
     the scenarios where a rail passed a greedy step, by how far under the
     training's largest command its level sat (from the rows' coverage
     flags), and which limit was injected there.
+``met``
+    the scenarios where a resonance and a stroke limit met in a joint refit
+    (a later greedy step tried one on top of the other), whose verdicts the
+    order of the two can move: their seeds, for ``blind_gap.py --seeds``.
 
 Usage::
 
     python benchmarks/spent_rows.py limits held45.jsonl held46.jsonl ...
     python benchmarks/spent_rows.py rails held45.jsonl held46.jsonl ...
     python benchmarks/spent_rows.py rail-tops held45.jsonl held46.jsonl ...
+    python benchmarks/spent_rows.py met held63.jsonl held64.jsonl ...
 
 A seed found in several files counts once, from the first file that holds it
 (give the held-out runs' own files first).
@@ -36,7 +41,7 @@ from fonbw.gap.checks import top_passed
 from fonbw.gap.limits import Clip
 from gap_summary import MATERIAL
 
-__all__ = ["rows", "steps", "contested_limits", "accepted_rails", "passing_rail_tops"]
+__all__ = ["rows", "steps", "contested_limits", "accepted_rails", "passing_rail_tops", "resonance_met_limit"]
 
 
 def rows(paths):
@@ -114,6 +119,22 @@ def passing_rail_tops(rs):
     return out
 
 
+def resonance_met_limit(rs):
+    """The rows where a later greedy step refit a stroke limit on top of an
+    accepted resonance, or a resonance on top of an accepted stroke limit."""
+    pair = {"dynamics": "saturation", "saturation": "dynamics"}
+    return [r for r in rs
+            if any(pair.get(c["effect"]) in s["on_top_of"] for s in r.get("later_steps") or [] for c in s["candidates"])]
+
+
+def _print_met(rs):
+    found = resonance_met_limit(rs)
+    for r in found:
+        inj = {k: round(v["magnitude"], 1) for k, v in r["injected"].items()}
+        print(f"{r['seed']} {r['family']:9s} injected {inj or '-'} named {r['named']}")
+    print(f"{len(found)} of {len(rs)} scenarios; seeds: {' '.join(str(r['seed']) for r in found)}")
+
+
 def _print_limits(rs):
     found = contested_limits(rs)
     for s in found:
@@ -153,11 +174,11 @@ def _print_rail_tops(rs, share=Clip.top_share):
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("scan", choices=("limits", "rails", "rail-tops"))
+    p.add_argument("scan", choices=("limits", "rails", "rail-tops", "met"))
     p.add_argument("files", nargs="+", help="JSON-lines files of blind_gap.py runs")
     a = p.parse_args(argv)
     rs = rows(a.files)
-    {"limits": _print_limits, "rails": _print_rails, "rail-tops": _print_rail_tops}[a.scan](rs)
+    {"limits": _print_limits, "rails": _print_rails, "rail-tops": _print_rail_tops, "met": _print_met}[a.scan](rs)
 
 
 if __name__ == "__main__":

@@ -292,6 +292,13 @@ def test_scans_of_spent_rows_on_hand_made_steps(tmp_path):
     assert tops[0]["under"] == pytest.approx(4.77) and tops[1]["under"] == pytest.approx(0.3)
     del rs[1]["remaining"]                      # no flag: no top to measure against
     assert [s["seed"] for s in sr.passing_rail_tops(rs)] == [1]
+    # a stroke limit refit on top of an accepted resonance meets it; on top of a drift it does not
+    assert sr.resonance_met_limit(rs) == []
+    met = {"seed": 3, "family": "fonbw", "injected": {}, "named": ["dynamics"],
+           "candidates": [_cand("dynamics", True, 0.9, -500)],
+           "later_steps": [{"on_top_of": ["dynamics"], "accepted": None,
+                            "candidates": [_cand("saturation", False, 0.01, 5)]}]}
+    assert [r["seed"] for r in sr.resonance_met_limit(rs + [met])] == [3]
 
 
 def _digest_diagnose(train, validate, seed=0, budget=0, **kw):
@@ -325,3 +332,7 @@ def test_blind_run_on_dask_matches_the_scenarios_run_in_process(tmp_path):
     # a second run finds every seed in the file and submits nothing
     bg.run(span, seeds[0], str(out), 7, only=kinds, options=opt, workers=1)
     assert len(bg._read_jsonl(str(out))) == len(seeds)
+    # a list of spent seeds, diagnosed again: those, not a range
+    again = tmp_path / "again.jsonl"
+    bg.run(0, 0, str(again), 7, options=opt, workers=1, seeds=[seeds[2], seeds[0]])
+    assert sorted(r["seed"] for r in bg._read_jsonl(str(again))) == sorted([seeds[2], seeds[0]])
