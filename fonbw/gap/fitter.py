@@ -151,6 +151,7 @@ class Fitter:
             inv = np.ravel(inv)
             first = np.array([int(np.flatnonzero(inv == j)[0]) for j in range(len(uniq))])
         pre = prelimit.ahead_of_operators(effects)
+        lens, dts = [len(rec.u) for rec in records], [rec.dt for rec in records]
         parts = []
         for rec, yref in zip(records, yrefs):
             B = self.base_columns(rec, X, key, first, inp)
@@ -180,8 +181,6 @@ class Fitter:
             if not limits:
                 yield A
             elif pre:
-                lens = [len(rec.u) for rec in records]
-                dts = [rec.dt for rec in records]
                 yield A, prelimit.PreLimit(pre[0], TH[pre[1]][p], np.hstack(m_pre).T,
                                            lambda v, p=p: prelimit.operate_stacked(v, effects, TH, p, lens, dts))
             else:

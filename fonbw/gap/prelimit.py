@@ -66,8 +66,13 @@ class PreLimit:
 
     def column(self, bM):
         """g = H[f(M b_M)] on the rows seen."""
-        g = self.filt(self.e.shape(self.M @ bM, self.th)[0])
-        return g if self.rows is None else g[self.rows]
+        return self.evaluate(bM)[0]
+
+    def evaluate(self, bM):
+        """(g on the rows seen, f'(z) on all rows) at z = M b_M."""
+        f, df = self.e.shape(self.M @ bM, self.th)
+        g = self.filt(f)
+        return (g if self.rows is None else g[self.rows]), df
 
 
 class Steps:
@@ -88,10 +93,7 @@ class Steps:
         return [None, None, None]
 
     def residual(self, b, into):
-        pre = self.pre
-        f, df = pre.e.shape(pre.M @ b[:pre.q], pre.th)
-        g = pre.filt(f)
-        g = g if pre.rows is None else g[pre.rows]
+        g, df = self.pre.evaluate(b[:self.pre.q])
         r = self.y - self.F @ b[:-1] - b[-1] * g
         into[:] = [r, df, g]
         return float(r @ r)
