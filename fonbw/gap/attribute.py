@@ -248,8 +248,7 @@ class Diagnosis(NominalStage, GreedySteps):
         self.lib = fx.library(dt, U, t_max, effects,
                               y_range=(float(np.quantile(ys, 0.001)), float(np.max(ys))),
                               u_top=max(float(np.max(r.u)) for r in self.rs.raw["train"]),
-                              past_top=checks.top_passed(self.coverage) is not None,
-                              starts=sum(int(b) > 0 for b in self.skip_tr))
+                              past_top=checks.top_passed(self.coverage) is not None)
         self.timing = {}
         # a limit only the validation records reach (fonbw.gap.beyond)
         self.beyond = None

@@ -97,8 +97,6 @@ class Effect:
     compressive = False
     c_min = -math.inf
     lin_nonneg = False
-    #: Linear parameters left free in sign whatever ``lin_nonneg`` says.
-    lin_free: tuple = ()
     lag = False
     edges_left_most: float | None = None
     edges_who = ""

@@ -118,12 +118,7 @@ class Creep(Effect):
     #: quarter decade under it too.
     LOG_FASTEST = 0.01
 
-    #: Free modes whose state a record starting mid-drive brings along (its
-    #: own start column, :meth:`columns`): the faster ones settle within the
-    #: burn-in run after the record's history.
-    START_TAU_MIN = 1.0
-
-    def __init__(self, dt, t_max, starts=0):
+    def __init__(self, dt, t_max):
         super().__init__()
         taus = [tau for tau in CREEP_TAUS if tau <= 2.0 * t_max and tau >= 20 * dt]
         self.taus = tuple(taus or [max(20 * dt, t_max / 4)])
@@ -132,15 +127,10 @@ class Creep(Effect):
         hi = math.floor(k * math.log10(max(self.taus)) + 1e-9)
         law = tuple(10.0 ** (i / k) for i in range(lo, hi + 1))
         self.log_taus = law if len(law) >= 2 else ()
-        self.start_taus = tuple(tau for tau in self.taus if tau >= self.START_TAU_MIN)
-        self.starts = int(starts) if self.start_taus else 0
-        self.lin_free = tuple(f"x0_{tau:g}s_{j}" for j in range(self.starts) for tau in self.start_taus)
-        self.lin_names = (tuple(f"g_{tau:g}s" for tau in self.taus) + (("gamma",) if self.log_taus else ())
-                          + self.lin_free)
+        self.lin_names = tuple(f"g_{tau:g}s" for tau in self.taus) + (("gamma",) if self.log_taus else ())
         self.units = {k: "1" for k in self.lin_names}
         if self.log_taus:
             self.units["gamma"] = "1 per decade"
-        self.units.update({k: "um" for k in self.lin_free})
 
     def has_law(self, core):
         """Whether the block fits its logarithmic law on the nominal `core`:
@@ -148,28 +138,9 @@ class Creep(Effect):
         return bool(self.log_taus) and core in self.LAW_CORES
 
     def lin_names_on(self, core):
-        return self.lin_names[:len(self.taus) + (1 if self.has_law(core) else 0)] + self.lin_free
-
-    def describe(self, th, lin, core="fonbw"):
-        """The creep's parameters (:meth:`Effect.describe`) without the
-        start states of the records that start mid-drive."""
-        d = super().describe(th, lin, core)
-        return {k: v for k, v in d.items() if k not in self.lin_free}
+        return self.lin_names if self.has_law(core) else self.lin_names[:len(self.taus)]
 
     def columns(self, ctx, th):
-        """The modes' columns, then the start columns: with ``starts`` training
-        records that start mid-drive, one per slow mode (``start_taus``) and
-        such record, exp(-(t - t_b) / τ) from the record's first scored sample
-        t_b on (1 before) on the record ``ctx["start"] = (its index among
-        them, b)``, 0 on every other record.
-
-        A slow mode's state at t_b depends on how the stage was driven before
-        the record began, which the history run ahead of it (a sweep or two)
-        does not show; left at the history's, its error decays over the
-        record as this column does, and the modes' gains took it up. Its
-        coefficient (free in sign) is that error times the mode's gain, and a
-        validation record, whose error no fit may see, gets none.
-        """
         h, dt = ctx["y_ref"], ctx["dt"]
         modes = {tau: first_order(h, math.exp(-dt / tau)) - h for tau in self.taus}
         cols = list(modes.values())
@@ -179,14 +150,6 @@ class Creep(Effect):
             for tau in self.log_taus:
                 law += modes[tau] if tau in modes else first_order(h, math.exp(-dt / tau)) - h
             cols.append(law / self.LOG_PER_DECADE)
-        if self.starts:
-            S = np.zeros((h.size, len(self.lin_free)))
-            if ctx.get("start") is not None:
-                j, b = ctx["start"]
-                after = np.maximum(np.arange(h.size) - b, 0) * dt
-                for i, tau in enumerate(self.start_taus):
-                    S[:, j * len(self.start_taus) + i] = np.exp(-after / tau)
-            cols.extend(S.T)
         return np.column_stack(cols)
 
 
@@ -452,18 +415,18 @@ class Amplifier(Effect):
         return out
 
 
-def library(dt, U, t_max, names=EFFECTS, y_range=(0.0, 1.0), u_top=None, past_top=False, starts=0):
+def library(dt, U, t_max, names=EFFECTS, y_range=(0.0, 1.0), u_top=None, past_top=False):
     """The candidate blocks for records with step `dt` [s], max |u| `U` [V], longest
     record `t_max` [s] and measured displacements within `y_range` [µm]; the
     rail is judged against the largest training command `u_top` [V] (default
     `U`), past which the validation records drive when `past_top`
-    (:class:`Clip`); `starts` training records start mid-drive (:class:`Creep`).
+    (:class:`Clip`).
 
     Parameters are in physical units, so the same blocks act on records
     decimated for the global search (the blocks read the records' own step).
     """
     make = {
-        "creep": lambda: Creep(dt, t_max, starts),
+        "creep": lambda: Creep(dt, t_max),
         "dynamics": lambda: Dynamics(dt),
         "amplifier": lambda: Amplifier(dt, U),
         "delay": lambda: Delay(dt),

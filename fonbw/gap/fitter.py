@@ -94,9 +94,6 @@ class Fitter:
         self.pnames = hyst.param_names(KIND, N)
         self.y_all = np.concatenate([r.y for r in records])
         self.keep = None
-        # the training records that start mid-drive, by their input: a
-        # block's start columns (effects.Creep) belong to one of them
-        self.starts = [(r.u, int(b)) for r, b in zip(records, skip or ()) if int(b) > 0]
         if skip is not None and any(int(b) > 0 for b in skip):
             self.keep = np.concatenate([np.arange(len(r.y)) >= int(b) for r, b in zip(records, skip)])
         # y: the samples every fit and score uses
@@ -158,8 +155,7 @@ class Fitter:
         parts = []
         for rec, yref in zip(records, yrefs):
             B = self.base_columns(rec, X, key, first, inp)
-            ctx = {"t": np.arange(len(rec.u)) * rec.dt, "y_ref": yref, "dt": rec.dt, "core": self.core.name,
-                   "start": self.start_of(rec)}
+            ctx = {"t": np.arange(len(rec.u)) * rec.dt, "y_ref": yref, "dt": rec.dt, "core": self.core.name}
             # regressors of blocks without nonlinear parameters are the same for every row
             fixed = {id(e): self.fixed_columns(e, ctx) for e in effects if not e.names}
             parts.append((rec, ctx, B, fixed))
@@ -223,14 +219,9 @@ class Fitter:
             self._sim_bytes -= self._sims.popitem(last=False)[1][3]
         return out
 
-    def start_of(self, rec):
-        """(index among the training records that start mid-drive, first
-        scored sample) of `rec`, None for any other record (a validation one)."""
-        return next(((j, b) for j, (u, b) in enumerate(self.starts) if u is rec.u), None)
-
     def fixed_columns(self, e, ctx):
         """Regressors of a block without nonlinear parameters, built once per driving signal."""
-        key = (id(e), id(ctx["y_ref"]), len(ctx["t"]), ctx["dt"], ctx["start"])
+        key = (id(e), id(ctx["y_ref"]), len(ctx["t"]), ctx["dt"])
         if key not in self._fixed:
             # the entry holds the block and the driving signal, so their ids stay unique
             self._fixed[key] = (e, ctx["y_ref"], e.columns(ctx, ()))
@@ -259,9 +250,8 @@ class Fitter:
     def nonneg(self, effects):
         """Indices of the coefficients bounded below by 0 (the gains of the
         ``lin_nonneg`` blocks among `effects`), or None."""
-        core = self.core.name
         idx = [j for e, sl in zip(effects, self.lin_slices(effects)) if e.lin_nonneg
-               for j, name in zip(range(sl.start, sl.stop), e.lin_names_on(core)) if name not in e.lin_free]
+               for j in range(sl.start, sl.stop)]
         return idx or None
 
     def design_limit(self, records, X, effects, TH, yrefs):
