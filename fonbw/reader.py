@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import csv
 import math
+import os
 import re
 import shlex
+import subprocess
 
 __all__ = ["KEYS", "parse_columns", "read_text", "sniff_delimiter", "split_rows", "resolve_columns",
            "parse_rows", "fmt"]
@@ -171,6 +173,15 @@ def _norm(name) -> str:
     return re.sub(r"\s*([\[(].*[\])]|/\s*\S+)\s*$", "", name).strip().lower()
 
 
+def _shell_quote(arg: str, nt: bool | None = None) -> str:
+    """`arg` quoted as the user's shell reads it back as one argument: POSIX
+    shells take single quotes, which Windows' cmd.exe passes on literally,
+    so there it is quoted by the C runtime's rules (double quotes)."""
+    if nt if nt is not None else os.name == "nt":
+        return subprocess.list2cmdline([arg])
+    return shlex.quote(arg)
+
+
 def _suggest(names, wanted) -> str:
     """A ``--columns`` mapping built from common header names, or a generic hint."""
     found = {}
@@ -181,7 +192,7 @@ def _suggest(names, wanted) -> str:
                 break
     if len(found) == len(wanted):
         # quoted as a shell needs it: header names often hold spaces and brackets
-        return "map them with --columns " + shlex.quote(",".join(f"{k}={v}" for k, v in found.items()))
+        return "map them with --columns " + _shell_quote(",".join(f"{k}={v}" for k, v in found.items()))
     return ("map them with --columns " + ",".join(f"{k}=COL" for k in wanted)
             + " (COL a header name or a 1-based position)")
 

@@ -75,6 +75,11 @@ def test_no_header_positions_and_odd_header(tmp_path):
 
     flag, mapping = shlex.split(str(ei.value).rsplit("map them with ", 1)[1])
     assert flag == "--columns" and np.array_equal(read_record(odd, columns=mapping).u, r.u)
+    # cmd.exe passes single quotes on: on Windows the hint takes double quotes
+    from fonbw.reader import _shell_quote
+
+    assert _shell_quote(mapping, nt=True) == '"t=Zeit [s],u=Spannung [V],y=Weg [µm]"'
+    assert _shell_quote("t=1,u=2,y=3", nt=True) == "t=1,u=2,y=3" == _shell_quote("t=1,u=2,y=3", nt=False)
 
 
 def test_units_are_scaled_and_implausible_ones_flagged(tmp_path):
