@@ -22,7 +22,6 @@ import math
 import os
 import re
 import shlex
-import subprocess
 
 __all__ = ["KEYS", "parse_columns", "read_text", "sniff_delimiter", "split_rows", "resolve_columns",
            "parse_rows", "fmt"]
@@ -173,13 +172,25 @@ def _norm(name) -> str:
     return re.sub(r"\s*([\[(].*[\])]|/\s*\S+)\s*$", "", name).strip().lower()
 
 
+#: Characters of a header name that the ``--columns`` hint gives by position
+#: instead: the mapping's separator, and what cmd.exe or the C runtime would
+#: read inside double quotes (a quote, a variable's %, a backslash before the
+#: closing quote).
+_BY_POSITION = ',"%\\'
+
+
 def _shell_quote(arg: str, nt: bool | None = None) -> str:
-    """`arg` quoted as the user's shell reads it back as one argument: POSIX
-    shells take single quotes, which Windows' cmd.exe passes on literally,
-    so there it is quoted by the C runtime's rules (double quotes)."""
-    if nt if nt is not None else os.name == "nt":
-        return subprocess.list2cmdline([arg])
-    return shlex.quote(arg)
+    """`arg` quoted so that the user's shell reads it back as one argument.
+
+    POSIX shells take single quotes; Windows' cmd.exe passes those on
+    literally, so there (`nt`, default: this system) it is put in double
+    quotes, inside which cmd.exe leaves ``&``, ``|``, ``<``, ``>`` and ``^``
+    alone. The names that double quotes cannot carry never get here
+    (:data:`_BY_POSITION`).
+    """
+    if nt is None:
+        nt = os.name == "nt"
+    return f'"{arg}"' if nt else shlex.quote(arg)
 
 
 def _suggest(names, wanted) -> str:
@@ -188,7 +199,7 @@ def _suggest(names, wanted) -> str:
     for k in wanted:
         for j, n in enumerate(names):
             if _norm(n) in _SYNONYMS[k] or _norm(n) == k.lower():
-                found[k] = n if n and "," not in n else str(j + 1)
+                found[k] = n if n and not any(c in n for c in _BY_POSITION) else str(j + 1)
                 break
     if len(found) == len(wanted):
         # quoted as a shell needs it: header names often hold spaces and brackets

@@ -75,11 +75,16 @@ def test_no_header_positions_and_odd_header(tmp_path):
 
     flag, mapping = shlex.split(str(ei.value).rsplit("map them with ", 1)[1])
     assert flag == "--columns" and np.array_equal(read_record(odd, columns=mapping).u, r.u)
-    # cmd.exe passes single quotes on: on Windows the hint takes double quotes
-    from fonbw.reader import _shell_quote
+    # cmd.exe passes single quotes on: on Windows the hint takes double
+    # quotes, also without a space (cmd.exe would split at the &)
+    from fonbw.reader import _shell_quote, _suggest
 
     assert _shell_quote(mapping, nt=True) == '"t=Zeit [s],u=Spannung [V],y=Weg [µm]"'
-    assert _shell_quote("t=1,u=2,y=3", nt=True) == "t=1,u=2,y=3" == _shell_quote("t=1,u=2,y=3", nt=False)
+    assert _shell_quote("u=A&B", nt=True) == '"u=A&B"' and _shell_quote("u=A&B", nt=False) == "'u=A&B'"
+    # names double quotes cannot carry (a backslash before the closing quote,
+    # cmd's %) are given by position
+    hint = _suggest(["", "Zeit [s\\]", "Weg [%]", "Spannung [V]"], ["t", "u", "y"])
+    assert hint.endswith("--columns " + _shell_quote("t=2,u=Spannung [V],y=3"))
 
 
 def test_units_are_scaled_and_implausible_ones_flagged(tmp_path):
