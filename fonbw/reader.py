@@ -174,8 +174,9 @@ def _norm(name) -> str:
 
 #: Characters of a header name that the ``--columns`` hint gives by position
 #: instead: the mapping's separator, and what cmd.exe or the C runtime would
-#: read inside double quotes (a quote, a variable's %, a backslash before the
-#: closing quote).
+#: read inside double quotes (a quote, a variable's %, and a backslash, which
+#: escapes the closing quote when a name ends in one; any backslash is
+#: refused, so the rule does not depend on the name's place in the mapping).
 _BY_POSITION = ',"%\\'
 
 
