@@ -8,8 +8,13 @@ bench (limits from the training range)::
     python benchmarks/table4_seeds.py --seeds 0 1 2
     python benchmarks/table4_seeds.py --seeds 2 --fix lam2=1
     python benchmarks/table4_seeds.py --seeds 2 --fix lam1=1
+    python benchmarks/table4_seeds.py --seeds 0 --sweep 1 10 4
+    python benchmarks/table4_seeds.py --seeds 0 --no-creep
 
-One line per seed: λ1, λ2, both fits [µm] and the RMS tracking errors [µm];
+``--sweep F0 F1 T`` adds a third training record, a full-stroke (0-120 V)
+sweep from F0 to F1 Hz, exponential in frequency, over T s; ``--no-creep``
+switches the bench's creep off for the training records and the tracking
+alike. One line per seed: λ1, λ2, both fits [µm] and the RMS tracking errors [µm];
 with ``--windows`` also the 5-Hz error's mean and its RMS without the mean
 in 0.2-s windows.
 """
@@ -40,6 +45,27 @@ def _windows(bench, model, T=2.0, win=0.2):
     return ([float(np.mean(p)) for p in parts], [float(np.std(p)) for p in parts])
 
 
+def _sweep(f0, f1, T, fs):
+    """u = 60 - 60 cos(phase) V, its frequency rising from f0 to f1 [Hz]
+    exponentially over T [s]."""
+    t = np.arange(int(round(T * fs))) / fs
+    k = np.log(f1 / f0) / T
+    return 60.0 - 60.0 * np.cos(2 * np.pi * f0 * (np.exp(k * t) - 1.0) / k)
+
+
+def _records(sweep, creep, fs=5000.0):
+    """Table 4's pooled training records (:func:`fonbw.reproduce.table4_training`),
+    with the sweep after them and the bench's creep as asked."""
+    from fonbw.bench import Bench
+    from fonbw.signals import eq19_input, multi_input
+
+    b = Bench(seed=0, fs=fs, creep=creep)
+    recs = [b.record(eq19_input(fs, T=10.0)[1], "eq19"), b.record(multi_input(fs=fs, T=4.0)[1], "multi")]
+    if sweep:
+        recs.append(b.record(_sweep(*sweep, fs), "sweep"))
+    return recs
+
+
 def main(argv=None):
     from fonbw.bench import Bench
     from fonbw.reproduce import table4, table4_models, table4_training
@@ -50,19 +76,25 @@ def main(argv=None):
     ap.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
                     help="hold a FONBW search variable (e.g. lam2=1)")
     ap.add_argument("--windows", action="store_true")
+    ap.add_argument("--sweep", type=float, nargs=3, metavar=("F0", "F1", "T"),
+                    help="add a full-stroke sweep from F0 to F1 [Hz] over T [s] to the training records")
+    ap.add_argument("--no-creep", action="store_true", help="the bench without its creep")
+    ap.add_argument("--cbw", action="store_true", help="identify and track with the CBW too")
     a = ap.parse_args(argv)
     fixed = {}
     for item in a.fix:
         k, _, v = item.partition("=")
         fixed[k] = (float(v), float(v))
     print(f"load average {os.getloadavg()[0]:.1f}", flush=True)
-    recs = table4_training(0)
-    bench = Bench(seed=0)
+    creep = not a.no_creep
+    recs = table4_training(0) if creep and not a.sweep else _records(a.sweep, creep)
+    bench = Bench(seed=0, creep=creep)
     for s in a.seeds:
         t0 = time.perf_counter()
         # the bench's records stay those of seed 0; only the search seed changes
         models, fits = table4_models(bench.dt, seed=s, max_evals=a.max_evals, records=recs,
-                                     kinds=(("NBW", "nbw"), ("FONBW", "fonbw")),
+                                     kinds=(("NBW", "nbw"), ("FONBW", "fonbw"))
+                                     + ((("CBW", "cbw"),) if a.cbw else ()),
                                      bounds={"fonbw": fixed} if fixed else None)
         rows = table4(bench, models, bench.dt, T=2.0, limits=None, ideal=False)
         err = {(r["compensator"], r["trajectory"]): r["rms_error"] for r in rows}
@@ -72,6 +104,9 @@ def main(argv=None):
               f"{err['NBW', '5-Hz']:.4f} | multi FONBW {err['FONBW', 'Multi-freq.']:.4f} NBW "
               f"{err['NBW', 'Multi-freq.']:.4f} µm ({time.perf_counter() - t0:.0f} s, load "
               f"{os.getloadavg()[0]:.1f})", flush=True)
+        if a.cbw:
+            print(f"  CBW: fit {fits['CBW']:.4f} µm, 5-Hz {err['CBW', '5-Hz']:.4f}, multi "
+                  f"{err['CBW', 'Multi-freq.']:.4f} µm", flush=True)
         if a.windows:
             for name, m in models.items():
                 mean, sd = _windows(bench, m)
