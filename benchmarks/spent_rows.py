@@ -17,6 +17,11 @@ diagnosing anything again. Two scans:
     the scenarios where a rail passed a greedy step, by how far under the
     training's largest command its level sat (from the rows' coverage
     flags), and which limit was injected there.
+``bends``
+    the stroke limits (``saturation``) accepted at a later greedy step whose
+    slope drop above the knee is under two thirds (a bend alone on the
+    nominal), with the effects accepted before them and whether a stroke
+    limit was injected.
 ``met``
     the scenarios where a resonance and a stroke limit met in a joint refit
     (a later greedy step tried one on top of the other), whose verdicts the
@@ -28,6 +33,7 @@ Usage::
     python benchmarks/spent_rows.py rails held45.jsonl held46.jsonl ...
     python benchmarks/spent_rows.py rail-tops held45.jsonl held46.jsonl ...
     python benchmarks/spent_rows.py met held63.jsonl held64.jsonl ...
+    python benchmarks/spent_rows.py bends held64.jsonl held65.jsonl ...
 
 A seed found in several files counts once, from the first file that holds it
 (give the held-out runs' own files first).
@@ -38,10 +44,11 @@ import argparse
 import json
 
 from fonbw.gap.checks import top_passed
-from fonbw.gap.limits import Clip
+from fonbw.gap.limits import Clip, Saturation
 from gap_summary import MATERIAL
 
-__all__ = ["rows", "steps", "contested_limits", "accepted_rails", "passing_rail_tops", "resonance_met_limit"]
+__all__ = ["rows", "steps", "contested_limits", "accepted_rails", "passing_rail_tops", "resonance_met_limit",
+           "later_bends"]
 
 
 def rows(paths):
@@ -127,6 +134,32 @@ def resonance_met_limit(rs):
             if any(pair.get(c["effect"]) in s["on_top_of"] for s in r.get("later_steps") or [] for c in s["candidates"])]
 
 
+def later_bends(rs, min_drop=Saturation.min_drop):
+    """One dict per stroke limit accepted at a later greedy step with a slope
+    drop (−c) under `min_drop`: what it was accepted beside, and whether a
+    stroke limit was injected (at ≥ 2 σ)."""
+    out = []
+    for r in rs:
+        for s in r.get("later_steps") or []:
+            for c in s["candidates"]:
+                if c["effect"] == "saturation" and c["accepted"] and -c["params"]["c"] < min_drop:
+                    out.append({"seed": r["seed"], "family": r["family"], "beside": list(s["on_top_of"]),
+                                "drop": -c["params"]["c"], "gap_closed": c["gap_closed"],
+                                "injected": sorted(n for n in r["injected"] if _injected(r, n)),
+                                "named": r["named"]})
+    return out
+
+
+def _print_bends(rs):
+    found = later_bends(rs)
+    for s in found:
+        print(f"{s['seed']} {s['family']:9s} beside {s['beside']}: slope drop {s['drop']:.2f}, closing "
+              f"{s['gap_closed']:.3f}; injected {s['injected'] or '-'}, named {s['named']}")
+    true = sum("saturation" in s["injected"] for s in found)
+    print(f"{len(found)} accepted over {len(rs)} scenarios: a stroke limit injected in {true}, "
+          f"none in {len(found) - true}")
+
+
 def _print_met(rs):
     found = resonance_met_limit(rs)
     for r in found:
@@ -174,11 +207,12 @@ def _print_rail_tops(rs, share=Clip.top_share):
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("scan", choices=("limits", "rails", "rail-tops", "met"))
+    p.add_argument("scan", choices=("limits", "rails", "rail-tops", "met", "bends"))
     p.add_argument("files", nargs="+", help="JSON-lines files of blind_gap.py runs")
     a = p.parse_args(argv)
     rs = rows(a.files)
-    {"limits": _print_limits, "rails": _print_rails, "rail-tops": _print_rail_tops, "met": _print_met}[a.scan](rs)
+    {"limits": _print_limits, "rails": _print_rails, "rail-tops": _print_rail_tops, "met": _print_met,
+     "bends": _print_bends}[a.scan](rs)
 
 
 if __name__ == "__main__":

@@ -339,7 +339,7 @@ def test_a_rail_at_the_top_of_the_training_commands_is_left_to_the_validation_re
     assert b.identified((59.9, 0.3)) and not b.identified((60.0, 0.3))
 
 
-def test_a_rail_refit_soft_beside_another_effect_stays_refused():
+def test_a_refusal_is_waived_at_a_later_step_only_beside_what_it_trades_with():
     from fonbw.gap import effects as fx
     from fonbw.gap.greedy import _refused
 
@@ -349,13 +349,23 @@ def test_a_rail_refit_soft_beside_another_effect_stays_refused():
     c = fx.Clip(114.77)
     first = [{"effect": "clip", "checks": {"refused": c.refuses({"level": 113.70, "knee": 1.680})}}]
     assert first[0]["checks"]["refused"] is None
-    assert "5.74 V" in _refused(c, 1, {"level": 126.24, "knee": 5.738}, first)
-    # a stroke limit's slope drop trades with the effect beside it: waived there
+    assert "5.74 V" in _refused(c, 1, {"level": 126.24, "knee": 5.738}, first, [fx.Saturation(0.0, 20.0)])
+    # a stroke limit's slope drop trades with a resonance's peaks beside it
+    # (seed 32028): waived there; beside a rail or a delay a bend refit after
+    # a stop alone is what that stop imitated (seeds 68037, 68013)
     sat = fx.Saturation(0.0, 20.0)
+    dt = 2e-4
     alone = [{"effect": "saturation", "checks": {"refused": sat.refuses({"knee": 11.6, "width": 0.3, "c": -0.779})}}]
-    assert sat.refuses({"knee": 11.6, "width": 0.3, "c": -0.30}) is not None
-    assert _refused(sat, 1, {"knee": 11.6, "width": 0.3, "c": -0.30}, alone) is None
-    assert _refused(sat, 0, {"knee": 11.6, "width": 0.3, "c": -0.30}, alone) is not None
+    bend = {"knee": 11.6, "width": 0.3, "c": -0.30}
+    assert sat.refuses(bend) is not None
+    assert _refused(sat, 1, bend, alone, [fx.Dynamics(dt)]) is None
+    assert _refused(sat, 2, bend, alone, [fx.Delay(dt), fx.Dynamics(dt)]) is None
+    for beside in ([fx.Clip(114.77)], [fx.Delay(dt)], [fx.Drift()], [fx.Amplifier(dt, 120.0)], []):
+        assert "bend of the loop" in _refused(sat, 1, bend, alone, beside)
+    assert _refused(sat, 0, bend, alone, [fx.Dynamics(dt)]) is not None
+    # a stop that was refused alone stays refused beside the resonance
+    assert _refused(sat, 1, bend, [{"effect": "saturation", "checks": {"refused": "a bend"}}],
+                    [fx.Dynamics(dt)]) is not None
 
 
 # ---------------------------------------------------------------------------

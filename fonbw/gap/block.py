@@ -77,11 +77,6 @@ class Effect:
         that what :meth:`refuses` took for something imitated is in the
         records: the refused block is then checked without its refusal
         (:meth:`fonbw.gap.greedy.GreedySteps._overrule`). None: no block can.
-    refuses_at_every_step : bool
-        :meth:`refuses` judges what the block is, not a parameter that trades
-        with an accepted effect's: it holds at a later greedy step even when
-        the block's fit alone on the nominal passed it
-        (:func:`fonbw.gap.greedy._refused`).
     """
 
     name = "none"
@@ -103,7 +98,6 @@ class Effect:
     transport_delay = False
     range_limit = False
     overruled_by: str | None = None
-    refuses_at_every_step = False
     search_seeds = 1
     #: How far above 1 the pooled leave-one-record-out ratio may lie
     #: (:func:`fonbw.gap.checks.loro`) for the block to pass; below zero, the
@@ -139,6 +133,14 @@ class Effect:
         """The lag [s] parameters `th` put on a slow sine (the phase over ω as
         ω → 0) for a lag block; None for a block that is none."""
         return None
+
+    def refusal_waived_beside(self, accepted) -> bool:
+        """Whether :meth:`refuses` is waived at a later greedy step beside the
+        effect blocks `accepted` before it, when this block's fit alone on the
+        nominal passed it: where its refused parameter trades with one of
+        theirs (:func:`fonbw.gap.greedy._refused`). By default a refusal
+        judges what the block is and holds at every step."""
+        return False
 
     def refuses(self, params) -> str | None:
         """Why fitted `params` (:meth:`describe`) are not this block's effect

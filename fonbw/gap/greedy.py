@@ -115,7 +115,7 @@ class GreedySteps:
                "own_bic": self._own_bic(fit, eff, k, ntr),
                "material": checks.material(step, gc, drop, cur["mse"] - sigma2, sigma2, self.min_gap_closed),
                "refused": _refused(lib[i], step, self.att["fitter"].effect_params(fit, eff)[lib[i].name],
-                                   self.candidates)}
+                                   self.candidates, cur["eff"])}
         if overruled:
             out["overruled"], out["refused"] = out["refused"], None
         # a refit that diverges on a faster record is not judged without it
@@ -520,19 +520,19 @@ def configuration(fit, eff, idx, mse, pred):
     return {"fit": fit, "eff": eff, "idx": idx, "mse": mse, "mse_tr": fit["rms"] ** 2, "pred": pred}
 
 
-def _refused(block, step, params, first):
-    """Why `block`, fitted to `params` at greedy `step`, is not its own effect
+def _refused(block, step, params, first, accepted=()):
+    """Why `block`, fitted to `params` at greedy `step` beside the effect
+    blocks `accepted` before it, is not its own effect
     (:meth:`fonbw.gap.block.Effect.refuses`), or None; `first` holds the
     first step's candidates.
 
-    A block that was its own effect alone on the nominal stays so: beside an
-    accepted effect its parameters trade with that effect's (a stroke limit's
-    corner with a resonance's peaks: its slope drop 0.78 alone, 0.30 beside
-    the resonance, blind-harness seed 32028). Not a block whose refusal says
-    what it is (:attr:`~fonbw.gap.block.Effect.refuses_at_every_step`).
+    A block that was its own effect alone on the nominal may stay so where
+    its parameters trade with an accepted effect's
+    (:meth:`~fonbw.gap.block.Effect.refusal_waived_beside`: a stroke limit's
+    corner with a resonance's peaks).
     """
     reason = block.refuses(params)
-    if reason is not None and step > 0 and not block.refuses_at_every_step:
+    if reason is not None and step > 0 and block.refusal_waived_beside(accepted):
         alone = next((c for c in first if c["effect"] == block.name), None)
         # one that passed there only beside its rival (:meth:`GreedySteps._overrule`) was no stop alone
         if alone is not None and alone["checks"]["refused"] is None and "overruled" not in alone["checks"]:

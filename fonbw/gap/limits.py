@@ -103,6 +103,18 @@ class Saturation(Effect):
     def columns(self, ctx, th):
         return self.shape(ctx["y_ref"], th)[0][:, None]
 
+    def refusal_waived_beside(self, accepted):
+        """Only beside a resonance: its peaks trade with the knee's corner
+        (seed 32028: a slope drop of 0.78 alone on the nominal, 0.30 beside
+        the resonance accepted before it). Beside any other block a bend
+        refit after a stop alone on the nominal is what that stop imitated:
+        of the eight stroke limits accepted at a later step with a drop
+        under two thirds in the 53rd-60th held-out runs (320 scenarios),
+        beside a rail, a lag, a delay or a drift and none beside a
+        resonance, one was injected (66021, beside a delay) and seven were
+        not (``benchmarks/spent_rows.py bends``)."""
+        return any(e.output_linear for e in accepted)
+
     def refuses(self, params):
         drop = -params["c"]
         if drop < self.min_drop:
@@ -161,11 +173,11 @@ class Clip(Effect):
     #: a 0.4 σ drift, 46005). The 16 other rails accepted where one was
     #: injected had knees of 0.11-1.75 V (BENCHMARKS.md, "A rail is sharp").
     knee_max_share = 0.025
+    # its knee refusal holds at every greedy step (Effect.refusal_waived_beside):
     # a knee refit wide beside an accepted stroke limit is that limit's bend
     # again, above every command (held-out seed 51020: 126.2 V, 5.74 V, where
     # alone on the nominal it was a sharp 113.7 V rail); the three rails
     # accepted so at a later step of the 35th-41st runs were none injected
-    refuses_at_every_step = True
     #: Nearest a rail may sit to the largest training command, as a share
     #: of U, to be judged on the training records, when the validation
     #: records drive past that command. Closer, the training records barely
