@@ -3,7 +3,7 @@
 The rows of ``benchmarks/blind_gap.py`` keep every greedy step's candidates
 with their checks and fitted parameters, so a rule on how candidates are
 chosen can be measured on runs already made before it is written, without
-diagnosing anything again. Two scans:
+diagnosing anything again. The scans:
 
 ``limits``
     the greedy steps where both a rail (``clip``) and a stroke limit
@@ -140,7 +140,10 @@ def later_bends(rs, min_drop=Saturation.min_drop):
     stroke limit was injected (at ≥ 2 σ)."""
     out = []
     for r in rs:
+        # a step judged on top of a limit named beyond the training range is no greedy step
         for s in r.get("later_steps") or []:
+            if s.get("beyond_training"):
+                continue
             for c in s["candidates"]:
                 if c["effect"] == "saturation" and c["accepted"] and -c["params"]["c"] < min_drop:
                     out.append({"seed": r["seed"], "family": r["family"], "beside": list(s["on_top_of"]),

@@ -53,19 +53,6 @@ def _sweep(f0, f1, T, fs):
     return 60.0 - 60.0 * np.cos(2 * np.pi * f0 * (np.exp(k * t) - 1.0) / k)
 
 
-def _records(sweep, creep, fs=5000.0):
-    """Table 4's pooled training records (:func:`fonbw.reproduce.table4_training`),
-    with the sweep after them and the bench's creep as asked."""
-    from fonbw.bench import Bench
-    from fonbw.signals import eq19_input, multi_input
-
-    b = Bench(seed=0, fs=fs, creep=creep)
-    recs = [b.record(eq19_input(fs, T=10.0)[1], "eq19"), b.record(multi_input(fs=fs, T=4.0)[1], "multi")]
-    if sweep:
-        recs.append(b.record(_sweep(*sweep, fs), "sweep"))
-    return recs
-
-
 def main(argv=None):
     from fonbw.bench import Bench
     from fonbw.reproduce import table4, table4_models, table4_training
@@ -86,8 +73,11 @@ def main(argv=None):
         k, _, v = item.partition("=")
         fixed[k] = (float(v), float(v))
     print(f"load average {os.getloadavg()[0]:.1f}", flush=True)
+    if a.sweep and not 0 < a.sweep[0] < a.sweep[1]:
+        ap.error("--sweep needs 0 < F0 < F1")
     creep = not a.no_creep
-    recs = table4_training(0) if creep and not a.sweep else _records(a.sweep, creep)
+    extra = [("sweep", _sweep(*a.sweep, 5000.0))] if a.sweep else []
+    recs = table4_training(0, creep=creep, extra=extra)
     bench = Bench(seed=0, creep=creep)
     for s in a.seeds:
         t0 = time.perf_counter()

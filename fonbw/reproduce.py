@@ -443,14 +443,18 @@ def format_table4(rows, paper=True) -> str:
     return "\n".join(lines)
 
 
-def table4_training(seed=0, fs=5000.0, T_eq19=10.0, T_multi=4.0):
+def table4_training(seed=0, fs=5000.0, T_eq19=10.0, T_multi=4.0, *, creep=True, extra=()):
     """The pooled training records every Table 4 model is identified on: the
     eq.-19 sweep and a multi-tone record (1, 5, 10, 20 Hz) from the default
     bench's truth sampled at ``fs`` [Hz] (identification cost scales with the
-    samples; the models are continuous-time and used at the bench's rate)."""
-    b = Bench(seed=seed, fs=fs)
+    samples; the models are continuous-time and used at the bench's rate).
+
+    ``creep=False`` switches the bench's creep off; ``extra`` holds
+    (name, input [V] at ``fs``) pairs recorded after the two on the same
+    bench (its noise stream goes on), for studies of the training set."""
+    b = Bench(seed=seed, fs=fs, creep=creep)
     return [b.record(eq19_input(fs, T=T_eq19)[1], "eq19"),
-            b.record(multi_input(fs=fs, T=T_multi)[1], "multi")]
+            b.record(multi_input(fs=fs, T=T_multi)[1], "multi")] + [b.record(u, name) for name, u in extra]
 
 
 #: Table 4's compensators and the model kinds behind them.

@@ -327,3 +327,27 @@ def test_zhu_model_with_a_start_is_compensated_from_it():
     assert np.max(np.abs(C.compensate(m, Hd, DT, history=()).u - res.u)) > 1e-3
     with pytest.warns(RuntimeWarning, match="eq.-22 form runs from rest"):
         C.compensate(m, Hd, DT, form="eq22")
+
+
+def test_table4_training_records_with_extra_inputs_and_without_creep():
+    from fonbw.bench import Bench
+    from fonbw.reproduce import table4_training
+    from fonbw.signals import eq19_input, multi_input
+
+    fs, T = 2000.0, 0.5
+    u = np.linspace(0.0, 100.0, 600)
+    base = table4_training(0, fs=fs, T_eq19=T, T_multi=T)
+    more = table4_training(0, fs=fs, T_eq19=T, T_multi=T, extra=[("ramp", u)])
+    # the extra record comes after the two, from the same bench and noise stream
+    assert [r.n for r in more] == [1000, 1000, 600]
+    for a, b in zip(base, more):
+        np.testing.assert_array_equal(a.y, b.y)
+    b = Bench(seed=0, fs=fs)
+    for name, x in (("eq19", eq19_input(fs, T=T)[1]), ("multi", multi_input(fs=fs, T=T)[1]), ("ramp", u)):
+        rec = b.record(x, name)
+    np.testing.assert_array_equal(more[2].y, rec.y)
+    # without its creep the bench's slow rise after the eq.-19 record's first peak is gone
+    flat = table4_training(0, fs=fs, T_eq19=T, T_multi=T, creep=False)
+    ref = Bench(seed=0, fs=fs, creep=False).record(eq19_input(fs, T=T)[1], "eq19")
+    np.testing.assert_array_equal(flat[0].y, ref.y)
+    assert np.max(np.abs(flat[0].y - base[0].y)) > 0.02

@@ -520,7 +520,7 @@ def configuration(fit, eff, idx, mse, pred):
     return {"fit": fit, "eff": eff, "idx": idx, "mse": mse, "mse_tr": fit["rms"] ** 2, "pred": pred}
 
 
-def _refused(block, step, params, first, accepted=()):
+def _refused(block, step, params, first, accepted):
     """Why `block`, fitted to `params` at greedy `step` beside the effect
     blocks `accepted` before it, is not its own effect
     (:meth:`fonbw.gap.block.Effect.refuses`), or None; `first` holds the

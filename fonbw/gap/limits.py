@@ -110,8 +110,8 @@ class Saturation(Effect):
         refit after a stop alone on the nominal is what that stop imitated:
         of the eight stroke limits accepted at a later step with a drop
         under two thirds in the 53rd-60th held-out runs (320 scenarios),
-        beside a rail, a lag, a delay or a drift and none beside a
-        resonance, one was injected (66021, beside a delay) and seven were
+        beside a rail, a lag (an amplifier or a delay) or a drift and none
+        beside a resonance, one was injected (66021, beside a delay) and seven were
         not (``benchmarks/spent_rows.py bends``)."""
         return any(e.output_linear for e in accepted)
 
@@ -173,11 +173,6 @@ class Clip(Effect):
     #: a 0.4 σ drift, 46005). The 16 other rails accepted where one was
     #: injected had knees of 0.11-1.75 V (BENCHMARKS.md, "A rail is sharp").
     knee_max_share = 0.025
-    # its knee refusal holds at every greedy step (Effect.refusal_waived_beside):
-    # a knee refit wide beside an accepted stroke limit is that limit's bend
-    # again, above every command (held-out seed 51020: 126.2 V, 5.74 V, where
-    # alone on the nominal it was a sharp 113.7 V rail); the three rails
-    # accepted so at a later step of the 35th-41st runs were none injected
     #: Nearest a rail may sit to the largest training command, as a share
     #: of U, to be judged on the training records, when the validation
     #: records drive past that command. Closer, the training records barely
@@ -208,6 +203,14 @@ class Clip(Effect):
     def identified(self, th):
         # a rail above every command the records reach is no rail
         return bool(th[0] < self.top)
+
+    def refusal_waived_beside(self, accepted):
+        """Never: a knee refit wide beside an accepted stroke limit is that
+        limit's bend again, above every command (held-out seed 51020: 126.2
+        V, 5.74 V, where alone on the nominal it was a sharp 113.7 V rail);
+        the three rails accepted so at a later step of the 35th-41st runs
+        were none injected."""
+        return False
 
     def refuses(self, params):
         most = self.knee_max_share * self.U
