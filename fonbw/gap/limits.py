@@ -111,8 +111,8 @@ class Saturation(Effect):
         of the eight stroke limits accepted at a later step with a drop
         under two thirds in the 53rd-60th held-out runs (320 scenarios),
         beside a rail, a lag (an amplifier or a delay) or a drift and none
-        beside a resonance, one was injected (66021, beside a delay) and seven were
-        not (``benchmarks/spent_rows.py bends``)."""
+        beside a resonance, one was injected (66021, beside a delay) and
+        seven were not (``benchmarks/spent_rows.py bends``)."""
         return any(e.output_linear for e in accepted)
 
     def refuses(self, params):
