@@ -1494,11 +1494,20 @@ def test_a_saturation_that_only_bends_the_top_of_the_loop_is_refused(monkeypatch
     assert not bend["passed"] and bend["failed"] == bend["refused"] and "bootstrap" not in bend
     assert checked(0, -0.779)["passed"]
     # a later step keeps the verdict of the block alone on the nominal
+    # beside a resonance, whose peaks trade with the corner; beside a delay
+    # the bend is refused again
+    from fonbw.gap.effects import Delay, Dynamics
+
     me.candidates = [{"effect": "saturation", "checks": checked(0, -0.779)}]
+    me.current["eff"] = [Dynamics(1e-4)]
     assert checked(1, -0.30)["passed"]
+    me.current["eff"] = [Delay(1e-4)]
+    assert checked(1, -0.30)["refused"].startswith("the slope above the knee drops by 30%")
+    assert checked(1, -0.9)["passed"]  # a stop beside the other effect is one
+    me.current["eff"] = [Dynamics(1e-4)]
     me.candidates = [{"effect": "saturation", "checks": checked(0, -0.441)}]
     assert not checked(1, -0.30)["passed"]
-    assert checked(1, -0.9)["passed"]  # a stop beside the other effect is one
+    assert checked(1, -0.9)["passed"]
 
 
 def test_a_saturation_refused_as_a_bend_is_judged_again_when_a_rail_passes_and_closes_less(monkeypatch):

@@ -1110,7 +1110,7 @@ def test_an_effect_is_material_by_the_same_share_on_either_nominal(core):
     d.edges = StepEdges([], 1e-4, 1.0)  # records without steps
     d._own_bic = lambda *a: -math.inf  # the block is all of its refit's gain
     d.att = {"core": core, "excess": 1.0, "fitter": SimpleNamespace(y=np.zeros(1000), effect_params=lambda fit, eff: {"a": {}})}
-    d.current = {"mse": 1.01, "mse_tr": 1e-4}
+    d.current = {"mse": 1.01, "mse_tr": 1e-4, "eff": []}
     fit = {"rms": 0.02, "th": [np.zeros(1)]}
 
     def material(step, mse):
@@ -1166,7 +1166,7 @@ def test_a_later_effect_is_material_when_it_closes_much_of_what_is_left():
     fit = {"rms": 0.02, "th": [np.zeros(1)]}
 
     def material(step, mse_now, mse):
-        d.current = {"mse": mse_now, "mse_tr": 1e-4}
+        d.current = {"mse": mse_now, "mse_tr": 1e-4, "eff": []}
         ch = d.check_candidate(0, step, fit, None, mse, None)
         assert ch["delta_bic"] > 0 and "bootstrap" not in ch
         return ch["material"]
