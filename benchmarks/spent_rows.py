@@ -66,10 +66,15 @@ def rows(paths):
     return out
 
 
+def _later(r):
+    """The later greedy steps of row `r`: a step judged on top of a limit
+    named beyond the training range is none."""
+    return [s for s in r.get("later_steps") or [] if not s.get("beyond_training")]
+
+
 def steps(r):
     """(step number, candidates, effect accepted or None) of each greedy step of row `r`."""
-    # a step judged on top of a limit named beyond the training range is no greedy step
-    later = [s for s in r.get("later_steps") or [] if not s.get("beyond_training")]
+    later = _later(r)
     first = later[0]["on_top_of"][-1] if later else (r["named"][0] if r["named"] else None)
     return [(1, r["candidates"], first)] + [(i + 2, s["candidates"], s.get("accepted"))
                                             for i, s in enumerate(later)]
@@ -140,10 +145,7 @@ def later_bends(rs, min_drop=Saturation.min_drop):
     stroke limit was injected (at ≥ 2 σ)."""
     out = []
     for r in rs:
-        # a step judged on top of a limit named beyond the training range is no greedy step
-        for s in r.get("later_steps") or []:
-            if s.get("beyond_training"):
-                continue
+        for s in _later(r):
             for c in s["candidates"]:
                 if c["effect"] == "saturation" and c["accepted"] and -c["params"]["c"] < min_drop:
                     out.append({"seed": r["seed"], "family": r["family"], "beside": list(s["on_top_of"]),

@@ -204,15 +204,13 @@ class Clip(Effect):
         # a rail above every command the records reach is no rail
         return bool(th[0] < self.top)
 
-    def refusal_waived_beside(self, accepted):
-        """Never: a knee refit wide beside an accepted stroke limit is that
-        limit's bend again, above every command (held-out seed 51020: 126.2
-        V, 5.74 V, where alone on the nominal it was a sharp 113.7 V rail);
-        the three rails accepted so at a later step of the 35th-41st runs
-        were none injected."""
-        return False
-
     def refuses(self, params):
+        # The knee's refusal holds at every greedy step (the default of
+        # Effect.refusal_waived_beside): a knee refit wide beside an accepted
+        # stroke limit is that limit's bend again, above every command
+        # (held-out seed 51020: 126.2 V, 5.74 V, where alone on the nominal it
+        # was a sharp 113.7 V rail); the three rails accepted so at a later
+        # step of the 35th-41st runs were none injected.
         most = self.knee_max_share * self.U
         if params["knee"] > most:
             return (f"its knee spreads over {params['knee']:.3g} V, more than a rail's {most:.3g} V: "
