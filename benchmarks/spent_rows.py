@@ -22,6 +22,11 @@ diagnosing anything again. The scans:
     slope drop above the knee is under two thirds (a bend alone on the
     nominal), with the effects accepted before them and whether a stroke
     limit was injected.
+``orders``
+    the order μ of the reference's fractional column, by core family and
+    by whether a lag of the drive or the stage (delay, amplifier,
+    resonance) was injected (at ≥ 2 σ): how often it went above a cut
+    (``--cut``, default 0.9), where the column is nearly a derivative.
 ``met``
     the scenarios where a resonance and a stroke limit met in a joint refit
     (a later greedy step tried one on top of the other), whose verdicts the
@@ -34,6 +39,7 @@ Usage::
     python benchmarks/spent_rows.py rail-tops held45.jsonl held46.jsonl ...
     python benchmarks/spent_rows.py met held63.jsonl held64.jsonl ...
     python benchmarks/spent_rows.py bends held64.jsonl held65.jsonl ...
+    python benchmarks/spent_rows.py orders held63.jsonl held64.jsonl ... [--cut 0.9]
 
 A seed found in several files counts once, from the first file that holds it
 (give the held-out runs' own files first).
@@ -48,7 +54,7 @@ from fonbw.gap.limits import Clip, Saturation
 from gap_summary import MATERIAL
 
 __all__ = ["rows", "steps", "contested_limits", "accepted_rails", "passing_rail_tops", "resonance_met_limit",
-           "later_bends"]
+           "later_bends", "LAGS", "reference_orders"]
 
 
 def rows(paths):
@@ -155,6 +161,31 @@ def later_bends(rs, min_drop=Saturation.min_drop):
     return out
 
 
+#: The injected effects that lag the drive or the stage.
+LAGS = ("delay", "amplifier", "dynamics")
+
+
+def reference_orders(rs, cut):
+    """The reference's fractional order μ of each row, grouped by (core
+    family, whether a lag of :data:`LAGS` was injected at ≥ 2 σ): a dict
+    of lists of (μ, seed), and how many μ lie above `cut` in each."""
+    groups = {}
+    for r in rs:
+        mu = (((r.get("form") or {}).get("reference") or {}).get("theta") or {}).get("mu")
+        if mu is None:
+            continue
+        key = (r["family"], any(_injected(r, n) for n in LAGS))
+        groups.setdefault(key, []).append((mu, r["seed"]))
+    return {k: (sorted(v), sum(m > cut for m, _ in v)) for k, v in sorted(groups.items())}
+
+
+def _print_orders(rs, cut):
+    for (family, lag), (found, above) in reference_orders(rs, cut).items():
+        seeds = " ".join(str(s) for m, s in found if m > cut)
+        print(f"{family:9s} {'a lag' if lag else 'no lag':6s}: μ above {cut:g} on {above} of {len(found)}"
+              + (f" ({seeds})" if seeds else ""))
+
+
 def _print_bends(rs):
     found = later_bends(rs)
     for s in found:
@@ -212,10 +243,13 @@ def _print_rail_tops(rs, share=Clip.top_share):
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("scan", choices=("limits", "rails", "rail-tops", "met", "bends"))
+    p.add_argument("scan", choices=("limits", "rails", "rail-tops", "met", "bends", "orders"))
     p.add_argument("files", nargs="+", help="JSON-lines files of blind_gap.py runs")
+    p.add_argument("--cut", type=float, default=0.9, help="the order μ counted above (orders)")
     a = p.parse_args(argv)
     rs = rows(a.files)
+    if a.scan == "orders":
+        return _print_orders(rs, a.cut)
     {"limits": _print_limits, "rails": _print_rails, "rail-tops": _print_rail_tops, "met": _print_met,
      "bends": _print_bends}[a.scan](rs)
 
