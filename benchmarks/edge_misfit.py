@@ -32,12 +32,11 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from blind_gap import DEFAULTS  # noqa: E402
 from gap_cores import FAMILIES  # noqa: E402
 from gap_truth import draw_scenario, scenario_family  # noqa: E402
+from spent_rows import LAGS  # noqa: E402
 
 from fonbw.gap.attribute import Diagnosis  # noqa: E402
 from fonbw.gap.edges import LEFT  # noqa: E402
 from fonbw.gap.workers import Pool  # noqa: E402
-
-LAGS = ("amplifier", "delay", "dynamics")
 
 
 def first_step(seed):

@@ -61,7 +61,7 @@ from gap_effects_truth import (LEGACY_POOL, POOL, TRUTH_EFFECTS, _amplifier_ode,
                                input_side, output_side, strength, strength_params)
 
 __all__ = ["TRUTH_EFFECTS", "KINDS", "Truth", "default_experiments", "draw_scenario", "scenario_kind",
-           "scenario_family", "magnitude", "calibrate"]
+           "scenario_family", "magnitude", "calibrate", "records_with"]
 
 FS = 5000.0
 KINDS = ("null", "single", "pair", "outside", "below")
@@ -95,6 +95,27 @@ def default_experiments(fs=FS, scale=1.0):
         ("steps_v", _sig.step_hold_input((80.0, 20.0), hold=1.0 * s, fs=fs)[1]),
     ]
     return train, val
+
+
+def _records(truth, drives, effects=None):
+    """The measured records of `truth` on `drives` (``{"train": items, "validate": items}``),
+    indexed as the noise and the drift's walk are drawn: training i, validation 50 + i;
+    with `effects` instead of the truth's own when given."""
+    out = {}
+    for key, off in (("train", 0), ("validate", 50)):
+        out[key] = []
+        for i, item in enumerate(drives[key]):
+            name, h, u = split_drive(item)
+            out[key].append(truth.record(u, name, off + i, history=h, effects=effects))
+    return out
+
+
+def records_with(sc, effects):
+    """Scenario `sc`'s records ({"train", "validate"}) had its truth carried
+    `effects` instead ({}: the core alone): the same drives, noise and ADC.
+    `effects` as the truth holds them (``sc["truth"].effects``: parameters
+    by effect name, without the calibration's ``share``)."""
+    return _records(sc["truth"], {"train": sc["train_drives"], "validate": sc["validate_drives"]}, effects)
 
 
 def split_drive(item):
@@ -176,10 +197,10 @@ class Truth:
         y = output_side(y, eff, self.dt, rng)
         return y[n0:] if n0 else y
 
-    def record(self, u, name, rec_index, history=None):
+    def record(self, u, name, rec_index, history=None, effects=None):
         """A measured record: noise and 16-bit ADC over ±40 µm added (see :meth:`output`)."""
         u = np.asarray(u, dtype=float)
-        y = self.output(u, rec_index, history=history)
+        y = self.output(u, rec_index, effects=effects, history=history)
         rng = np.random.default_rng([self.seed, rec_index, 11])
         y = y + rng.normal(0.0, self.noise_std, y.size)
         q = 80.0 / 2 ** 16
@@ -305,8 +326,8 @@ def fixed_case(seed, effects, scale=1.0, kind="null", family=None):
     truth = draw_scenario(seed, kind, scale=scale, family=family)["truth"]
     truth.effects = effects
     tr_in, va_in = default_experiments(scale=scale)
-    return (truth, [truth.record(u, n, i) for i, (n, u) in enumerate(tr_in)],
-            [truth.record(u, n, 50 + i) for i, (n, u) in enumerate(va_in)])
+    recs = _records(truth, {"train": tr_in, "validate": va_in})
+    return truth, recs["train"], recs["validate"]
 
 
 def draw_scenario(seed, kind=None, scale=1.0, fs=FS, family=None, core=None, mid_drive=0.0, pool=None):
@@ -372,12 +393,7 @@ def draw_scenario(seed, kind=None, scale=1.0, fs=FS, family=None, core=None, mid
     # so a knee or rail near the top can leave the training records untouched
     for n, v in injected.items():
         v["magnitude_train"] = magnitude(truth, drives["train"], n, truth.effects[n])
-    recs = {}
-    for key, off in (("train", 0), ("validate", 50)):
-        recs[key] = []
-        for i, item in enumerate(drives[key]):
-            name, h, u = split_drive(item)
-            recs[key].append(truth.record(u, name, off + i, history=h))
+    recs = _records(truth, drives)
     fam, params = _core_params(hyst)
     return {"kind": str(kind), "family": fam, "core_params": params, "truth": truth, "injected": injected,
             "train": recs["train"], "validate": recs["validate"], "train_drives": drives["train"],

@@ -49,6 +49,7 @@ from __future__ import annotations
 import argparse
 import json
 
+from fonbw.gap import effects as fx
 from fonbw.gap.checks import top_passed
 from fonbw.gap.limits import Clip, Saturation
 from gap_summary import MATERIAL
@@ -161,8 +162,9 @@ def later_bends(rs, min_drop=Saturation.min_drop):
     return out
 
 
-#: The injected effects that lag the drive or the stage.
-LAGS = ("delay", "amplifier", "dynamics")
+#: The injected effects that lag the drive or the stage: the library's lag blocks.
+LAGS = tuple(sorted(b.name for b in (fx.Creep, fx.Drift, fx.Dynamics, fx.Delay, fx.Amplifier, Clip, Saturation)
+                    if b.lag))
 
 
 def reference_orders(rs, cut):
@@ -245,13 +247,11 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("scan", choices=("limits", "rails", "rail-tops", "met", "bends", "orders"))
     p.add_argument("files", nargs="+", help="JSON-lines files of blind_gap.py runs")
-    p.add_argument("--cut", type=float, default=0.9, help="the order μ counted above (orders)")
+    p.add_argument("--cut", type=float, default=0.9, help="the order μ counted above (orders only)")
     a = p.parse_args(argv)
     rs = rows(a.files)
-    if a.scan == "orders":
-        return _print_orders(rs, a.cut)
     {"limits": _print_limits, "rails": _print_rails, "rail-tops": _print_rail_tops, "met": _print_met,
-     "bends": _print_bends}[a.scan](rs)
+     "bends": _print_bends, "orders": lambda rs: _print_orders(rs, a.cut)}[a.scan](rs)
 
 
 if __name__ == "__main__":
