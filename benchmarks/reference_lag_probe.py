@@ -32,6 +32,7 @@ import numpy as np
 from blind_gap import DEFAULTS
 from gap_cores import FAMILIES
 from gap_truth import draw_scenario, scenario_family
+import spent_rows
 
 RELAX = (0.002, 0.005, 0.01, 0.02, 0.05)
 
@@ -83,19 +84,6 @@ def _row_lags(sc, row, evals):
               f"{excess_closed(again, va_x, m0):.3f} (θ {[f'{t:.3g}' for t in again.theta]})", flush=True)
 
 
-def _rows(paths):
-    import json
-
-    out = {}
-    for path in paths:
-        with open(path) as fh:
-            for line in fh:
-                if line.strip():
-                    r = json.loads(line)
-                    out.setdefault(r["seed"], r)
-    return out
-
-
 def main(argv=None):
     from fonbw.gap.reference import ReferenceHysteresis
 
@@ -106,7 +94,7 @@ def main(argv=None):
     ap.add_argument("--rows", nargs="+", metavar="JSONL",
                     help="held-out rows: the lags their first greedy step fitted, on the diagnosis's reference")
     a = ap.parse_args(argv)
-    rows = _rows(a.rows) if a.rows else None
+    rows = {r["seed"]: r for r in spent_rows.rows(a.rows)} if a.rows else None
     for seed in a.seeds:
         fam = scenario_family(seed, tuple(FAMILIES))
         sc = draw_scenario(seed, scale=DEFAULTS["scale"], family=fam, mid_drive=DEFAULTS["mid_drive"])
