@@ -122,6 +122,27 @@ def test_mid_drive_record_is_the_tail_of_the_full_drive():
     assert np.max(np.abs(rec.y - clean)) < 6 * truth.noise_std + 80.0 / 2 ** 16
 
 
+def test_records_with_other_effects_keep_the_scenarios_drives_and_noise():
+    sc = tr.draw_scenario(31, "single", scale=SCALE, family="pi", mid_drive=1.0)
+    assert not sc["starts_at_rest"] and sc["injected"]
+    own = tr.records_with(sc, sc["truth"].effects)
+    for key in ("train", "validate"):
+        for a, b in zip(own[key], sc[key]):
+            np.testing.assert_array_equal(a.u, b.u)
+            np.testing.assert_array_equal(a.y, b.y)
+    # the core alone: the same noise, so the records differ by the effect's
+    # trace (to the ADC's step) and nowhere by more than the noise's draw
+    bare = tr.records_with(sc, {})
+    q = 80.0 / 2 ** 16
+    for key, off in (("train", 0), ("validate", 50)):
+        for i, (a, b) in enumerate(zip(bare[key], sc[key])):
+            name, hist, u = tr.split_drive(sc[key + "_drives"][i])
+            trace = (sc["truth"].output(u, off + i, history=hist)
+                     - sc["truth"].output(u, off + i, effects={}, history=hist))
+            assert np.max(np.abs((b.y - a.y) - trace)) <= 2 * q
+    assert sc["truth"].effects  # the truth keeps its own
+
+
 def test_a_rail_above_the_training_drives_is_not_seen_in_training():
     # training stops at 114.8 V, the validation sines reach 120 V: a rail at
     # 118 V with a 0.2-V knee lets 0.2 ln(1 + e^(-16)) ≈ 2e-8 V through there
@@ -299,6 +320,16 @@ def test_scans_of_spent_rows_on_hand_made_steps(tmp_path):
            "later_steps": [{"on_top_of": ["dynamics"], "accepted": None,
                             "candidates": [_cand("saturation", False, 0.01, 5)]}]}
     assert [r["seed"] for r in sr.resonance_met_limit(rs + [met])] == [3]
+    # the reference's fractional order by family and whether a lag was injected at ≥ 2 σ
+    assert sr.LAGS == ("amplifier", "delay", "dynamics")
+    for r, mu in zip(rs, (0.95, 0.60)):
+        r["form"] = {"reference": {"theta": {"beta": 1e-5, "mu": mu}}}
+    rs[1]["injected"] = {"amplifier": {"magnitude": 1.5}}  # under 2 σ: no lag
+    met["form"] = {"reference": {"theta": {"mu": 0.92}}}
+    met["injected"] = {"delay": {"magnitude": 3.0}}
+    got = sr.reference_orders(rs + [met], 0.9)
+    assert got == {("fonbw", True): ([(0.92, 3)], 1), ("pi", False): ([(0.95, 1)], 1),
+                   ("rate", False): ([(0.60, 2)], 0)}
 
 
 def _digest_diagnose(train, validate, seed=0, budget=0, **kw):
