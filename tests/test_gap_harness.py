@@ -131,7 +131,7 @@ def test_records_with_other_effects_keep_the_scenarios_drives_and_noise():
             np.testing.assert_array_equal(a.u, b.u)
             np.testing.assert_array_equal(a.y, b.y)
     # the core alone: the same noise, so the records differ by the effect's
-    # trace (to the ADC's step) and nowhere by more than the noise's draw
+    # trace, to two steps of the ADC
     bare = tr.records_with(sc, {})
     q = 80.0 / 2 ** 16
     for key, off in (("train", 0), ("validate", 50)):

@@ -301,7 +301,7 @@ def test_viscous_widening_and_relaxations_follow_a_maxwell_slip_core():
 def test_the_fractional_column_capped_below_a_derivative_leaves_a_delay_its_trace():
     # a blind-harness Prandtl–Ishlinskii core behind a 0.43-sample delay
     # (6.7 σ on validation; noise 0.0132 µm): searched up to μ = 0.98 the
-    # column went to 0.96 (0.98 on the full-length records), a derivative,
+    # column went to 0.96 (0.98 in the diagnosis of the full length), a derivative,
     # and the reference took the delay whole (validation MSE 0.23 σ² above
     # the same core without it); capped at MU_MAX it leaves 3.4 σ², which
     # the delay block, refit on top of the reference, can find
