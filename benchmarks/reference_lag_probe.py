@@ -47,6 +47,13 @@ def _lagged(records, fc):
             for r in records]
 
 
+def _val_mse(fit, records):
+    """Pooled MSE [µm²] of a reference fit on `records`."""
+    from fonbw.gap.checks import mse
+
+    return mse(records, [fit.predict(r) for r in records])
+
+
 def _row_lags(sc, row, evals):
     """Shares of the reference's excess validation MSE that the row's fitted
     delay and amplifier close, θ held and θ searched again: printed."""
@@ -60,11 +67,12 @@ def _row_lags(sc, row, evals):
                               degree=form.REFERENCE_DEGREE, level=form.REFERENCE_LEVEL,
                               memory=form.REFERENCE_MEMORY).with_range(tr)
 
-    def excess_closed(fit, recs, m0):
-        return (m0 - np.mean(np.concatenate([(r.y - fit.predict(r)) ** 2 for r in recs]))) / (m0 - s2)
-
     base = ref.fit(tr, seed=row["seed"], max_evals=evals)
-    m0 = float(np.mean(np.concatenate([(r.y - base.predict(r)) ** 2 for r in va])))
+    m0 = _val_mse(base, va)
+
+    def excess_closed(fit, recs):
+        return (m0 - _val_mse(fit, recs)) / (m0 - s2)
+
     print(f"  reference alone: validation {math.sqrt(m0):.4f} µm, θ {[f'{t:.3g}' for t in base.theta]}")
     dt = tr[0].dt
     for c in row["candidates"]:
@@ -75,13 +83,13 @@ def _row_lags(sc, row, evals):
         th = [c["params"][k] for k in blk.names]
         tr_x, va_x = ([Record.from_arrays(u=blk.transform_input(r.u, dt, th), y=r.y, dt=dt) for r in recs]
                       for recs in (tr, va))
-        y = np.concatenate([r.y for r in tr_x])
-        held = ReferenceFit(ref, ref.solve(ref._design(tr_x, base.theta), y)[0], base.theta, nfev=1,
+        Phi = np.concatenate([ref.columns(r.u, dt, base.theta) for r in tr_x])
+        held = ReferenceFit(ref, ref.solve(Phi, np.concatenate([r.y for r in tr_x]))[0], base.theta, nfev=1,
                             wall_time=0.0, build_time=0.0, solve_time=0.0)
         again = ref.fit(tr_x, seed=row["seed"], max_evals=evals, theta0=base.theta)
         print(f"  {c['effect']} as fitted ({', '.join(f'{v:.4g}' for v in th)}): closed {c['gap_closed']:.3f} "
-              f"in the diagnosis; θ held {excess_closed(held, va_x, m0):.3f}, θ searched again "
-              f"{excess_closed(again, va_x, m0):.3f} (θ {[f'{t:.3g}' for t in again.theta]})", flush=True)
+              f"in the diagnosis; θ held {excess_closed(held, va_x):.3f}, θ searched again "
+              f"{excess_closed(again, va_x):.3f} (θ {[f'{t:.3g}' for t in again.theta]})", flush=True)
 
 
 def main(argv=None):
@@ -112,7 +120,7 @@ def main(argv=None):
             t0 = time.perf_counter()
             fit = ref.fit(_lagged(sc["train"], fc), seed=0, max_evals=a.evals)
             val = _lagged(sc["validate"], fc)
-            rv = math.sqrt(np.mean(np.concatenate([(r.y - fit.predict(r)) ** 2 for r in val])))
+            rv = math.sqrt(_val_mse(fit, val))
             theta = ", ".join(f"{n} {v:.3g}" for n, v in zip(ref.theta_names, fit.theta))
             print(f"  input {'raw' if fc is None else f'lagged at {fc:g} Hz'}: train {fit.rms_train:.4f}, "
                   f"validation {rv:.4f} µm ({theta}; {time.perf_counter() - t0:.0f} s)", flush=True)

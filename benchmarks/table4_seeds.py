@@ -48,9 +48,10 @@ def _windows(bench, model, T=2.0, win=0.2):
 def _sweep(f0, f1, T, fs):
     """u = 60 - 60 cos(phase) V, its frequency rising from f0 to f1 [Hz]
     exponentially over T [s]."""
+    from scipy.signal import chirp
+
     t = np.arange(int(round(T * fs))) / fs
-    k = np.log(f1 / f0) / T
-    return 60.0 - 60.0 * np.cos(2 * np.pi * f0 * (np.exp(k * t) - 1.0) / k)
+    return 60.0 - 60.0 * chirp(t, f0, T, f1, method="logarithmic")
 
 
 def main(argv=None):
