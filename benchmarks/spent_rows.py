@@ -163,8 +163,7 @@ def later_bends(rs, min_drop=Saturation.min_drop):
 
 
 #: The injected effects that lag the drive or the stage: the library's lag blocks.
-LAGS = tuple(sorted(b.name for b in (fx.Creep, fx.Drift, fx.Dynamics, fx.Delay, fx.Amplifier, Clip, Saturation)
-                    if b.lag))
+LAGS = tuple(sorted(b.name for b in fx.Effect.__subclasses__() if b.lag))
 
 
 def reference_orders(rs, cut):
